@@ -1,0 +1,44 @@
+//! Subcommands: parse arguments, call the library, print (text, or one JSON object with --json).
+mod bench;
+mod render;
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+#[derive(Debug, Parser)]
+#[command(name = "flowram", version, about = "FlowRAM keyframe policy and real-time control stack for a MuJoCo Franka Panda")]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Render every camera of a scene: RGB PNG, 16-bit depth PNG (mm), world-frame PLY cloud.
+    Render(render::RenderArgs),
+    /// Benchmarks that print the project's performance figures.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+pub fn run() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Render(args) => render::run(args),
+        Command::Bench(cmd) => bench::run(cmd),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// Prints a serializable value as one line of JSON.
+fn print_json(value: &impl serde::Serialize) -> anyhow::Result<()> {
+    println!("{}", serde_json::to_string(value)?);
+    Ok(())
+}

@@ -1,0 +1,312 @@
+//! `World`: one loaded scene and its state. Resets, steps at the model's timestep (1 ms in
+//! flowram's scenes), reads the arm state, applies joint torques and the gripper command, and
+//! reads and sets object poses. No other module calls MuJoCo directly.
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+use mujoco_rs::prelude::*;
+use mujoco_rs::wrappers::mj_model::MjtObjBase;
+use nalgebra::{Isometry3, Matrix3, Rotation3, SVector, Translation3, UnitQuaternion};
+
+use super::SimError;
+use super::scene::{self, ARM_JOINTS, ARM_MOTORS, BASE_BODY, FINGER_JOINTS, GRIPPER_ACTUATOR, TCP_SITE};
+use crate::deps::Deps;
+
+/// Seven joint values of the arm (rad, rad/s or Nm), base to flange.
+pub type JointVector = SVector<f64, 7>;
+
+/// What a torque-controlled arm reports every tick.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ArmState {
+    /// Simulation time (s).
+    pub time: f64,
+    /// Joint positions (rad).
+    pub q: JointVector,
+    /// Joint velocities (rad/s).
+    pub dq: JointVector,
+    /// Torques the motors applied on the last step, after the actuators' limits (Nm).
+    pub tau: JointVector,
+    /// Tool centre point in the robot base frame (`panda_link0`), metres.
+    pub tcp_in_base: Isometry3<f64>,
+    /// Distance between the fingers (m): 0 closed, 0.08 fully open.
+    pub gripper_width: f64,
+}
+
+/// MuJoCo indices of the arm, resolved once at load.
+#[derive(Debug, Clone)]
+struct ArmIndex {
+    qpos: [usize; 7],
+    dof: [usize; 7],
+    motor: [usize; 7],
+    finger_qpos: [usize; 2],
+    finger_dof: [usize; 2],
+    gripper: usize,
+    tcp_site: usize,
+    base_body: usize,
+}
+
+/// A loaded scene with the Panda in it.
+pub struct World {
+    scene_path: PathBuf,
+    data: MjData<Arc<MjModel>>,
+    arm: ArmIndex,
+}
+
+impl std::fmt::Debug for World {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("World").field("scene", &self.scene_path).field("time", &self.time()).finish()
+    }
+}
+
+impl World {
+    /// Loads a scene file (see `models/scene.xml`) with the Panda from `deps`, and resets it to
+    /// the `home` posture.
+    pub fn load(scene_path: &Path, deps: &Deps) -> Result<Self, SimError> {
+        super::logging::install();
+        let model = Arc::new(scene::compose(scene_path, deps)?);
+        let arm = ArmIndex::resolve(&model, scene_path)?;
+        let data = MjData::new(model);
+        let mut world = Self { scene_path: scene_path.to_path_buf(), data, arm };
+        world.reset_to("home")?;
+        Ok(world)
+    }
+
+    /// Loads a scene by name (`default`, or a file in `models/`) or path, with the installed deps.
+    pub fn load_named(scene: &str) -> Result<Self, SimError> {
+        let path = scene::resolve_scene(scene)?;
+        Self::load(&path, &Deps::locate())
+    }
+
+    pub fn scene_path(&self) -> &Path {
+        &self.scene_path
+    }
+
+    pub fn model(&self) -> &MjModel {
+        self.data.model()
+    }
+
+    pub(crate) fn data_mut(&mut self) -> &mut MjData<Arc<MjModel>> {
+        &mut self.data
+    }
+
+    pub(crate) fn data(&self) -> &MjData<Arc<MjModel>> {
+        &self.data
+    }
+
+    /// Physics timestep (s).
+    pub fn timestep(&self) -> f64 {
+        self.model().ffi().opt.timestep
+    }
+
+    pub fn time(&self) -> f64 {
+        self.data.ffi().time
+    }
+
+    /// Resets everything to the model defaults, then the arm to a named posture: a MuJoCo
+    /// `<key name=..>` if the scene has one, else a `<numeric name="q_NAME">` of 7 joint angles
+    /// (the scene's `q_home`, `q_ready`). The gripper starts open.
+    pub fn reset_to(&mut self, name: &str) -> Result<(), SimError> {
+        let model = self.data.model().clone();
+        if let Some(key) = model.name_to_id(MjtObjBase::mjOBJ_KEY, name) {
+            self.data.reset_keyframe(key).map_err(|e| SimError::InvalidInput { what: "keyframe", detail: e.to_string() })?;
+            self.data.forward();
+            return Ok(());
+        }
+        let q = named_posture(&model, name).ok_or_else(|| SimError::UnknownName {
+            kind: "posture",
+            name: name.into(),
+            valid: posture_names(&model).join(", "),
+        })?;
+        self.reset_to_configuration(&q)
+    }
+
+    /// Resets everything to the model defaults with the arm at `q` (rad) and the gripper open.
+    pub fn reset_to_configuration(&mut self, q: &JointVector) -> Result<(), SimError> {
+        check_finite("joint configuration", q.as_slice())?;
+        self.data.reset();
+        let qpos = self.data.qpos_mut();
+        for (i, &adr) in self.arm.qpos.iter().enumerate() {
+            qpos[adr] = q[i];
+        }
+        for &adr in &self.arm.finger_qpos {
+            qpos[adr] = 0.04;
+        }
+        self.data.ctrl_mut()[self.arm.gripper] = 1.0;
+        self.data.forward();
+        Ok(())
+    }
+
+    /// Advances the physics by one timestep with the current torques and gripper command.
+    pub fn step(&mut self) {
+        self.data.step();
+    }
+
+    /// Joint torques (Nm) for the next steps. The motors clamp them to the Panda's rated
+    /// torques (87 Nm joints 1-4, 12 Nm joints 5-7); non-finite values are refused.
+    pub fn apply_torques(&mut self, tau: &JointVector) -> Result<(), SimError> {
+        check_finite("joint torques", tau.as_slice())?;
+        let ctrl = self.data.ctrl_mut();
+        for (i, &u) in self.arm.motor.iter().enumerate() {
+            ctrl[u] = tau[i];
+        }
+        Ok(())
+    }
+
+    /// Gripper command: 1 = open (0.08 m between the fingers), 0 = closed; values in between
+    /// ask for that fraction of the full opening. The hand's actuator limits the force to 100 N.
+    pub fn set_gripper(&mut self, opening: f64) -> Result<(), SimError> {
+        if !(0.0..=1.0).contains(&opening) {
+            return Err(SimError::InvalidInput {
+                what: "gripper command",
+                detail: format!("{opening} is outside [0, 1] (1 = open, 0 = closed)"),
+            });
+        }
+        self.data.ctrl_mut()[self.arm.gripper] = opening;
+        Ok(())
+    }
+
+    /// The arm's state now.
+    pub fn arm_state(&self) -> ArmState {
+        let qpos = self.data.qpos();
+        let qvel = self.data.qvel();
+        let force = self.data.actuator_force();
+        let q = JointVector::from_fn(|i, _| qpos[self.arm.qpos[i]]);
+        let dq = JointVector::from_fn(|i, _| qvel[self.arm.dof[i]]);
+        let tau = JointVector::from_fn(|i, _| force[self.arm.motor[i]]);
+        let gripper_width = self.arm.finger_qpos.iter().map(|&a| qpos[a]).sum();
+        ArmState { time: self.time(), q, dq, tau, tcp_in_base: self.base_pose().inverse() * self.tcp_pose(), gripper_width }
+    }
+
+    /// Finger joint velocities (m/s), for grasp detection.
+    pub fn finger_velocities(&self) -> [f64; 2] {
+        let qvel = self.data.qvel();
+        [qvel[self.arm.finger_dof[0]], qvel[self.arm.finger_dof[1]]]
+    }
+
+    /// Tool centre point in the world frame.
+    pub fn tcp_pose(&self) -> Isometry3<f64> {
+        let d = &self.data;
+        pose_from(&d.site_xpos()[self.arm.tcp_site], &d.site_xmat()[self.arm.tcp_site])
+    }
+
+    /// The robot base frame (`panda_link0`) in the world frame.
+    pub fn base_pose(&self) -> Isometry3<f64> {
+        let d = &self.data;
+        pose_from(&d.xpos()[self.arm.base_body], &d.xmat()[self.arm.base_body])
+    }
+
+    /// World pose of any body (objects, links).
+    pub fn body_pose(&self, name: &str) -> Result<Isometry3<f64>, SimError> {
+        let id = self.body_id(name)?;
+        Ok(pose_from(&self.data.xpos()[id], &self.data.xmat()[id]))
+    }
+
+    /// Places a free-floating body (one with a free joint) at `pose` in the world frame, at rest,
+    /// and recomputes the kinematics.
+    pub fn set_body_pose(&mut self, name: &str, pose: &Isometry3<f64>) -> Result<(), SimError> {
+        check_finite("pose", pose.translation.vector.as_slice())?;
+        check_finite("pose", pose.rotation.coords.as_slice())?;
+        let id = self.body_id(name)?;
+        let model = self.data.model();
+        let jnt = model.body_jntadr()[id];
+        if jnt < 0 || model.jnt_type()[jnt as usize] != MjtJoint::mjJNT_FREE {
+            return Err(SimError::NotFreeBody { name: name.into() });
+        }
+        let qadr = model.jnt_qposadr()[jnt as usize] as usize;
+        let vadr = model.jnt_dofadr()[jnt as usize] as usize;
+        let t = pose.translation.vector;
+        let r = pose.rotation.quaternion();
+        self.data.qpos_mut()[qadr..qadr + 7].copy_from_slice(&[t.x, t.y, t.z, r.w, r.i, r.j, r.k]);
+        self.data.qvel_mut()[vadr..vadr + 6].fill(0.0);
+        self.data.forward();
+        Ok(())
+    }
+
+    /// Recomputes positions, velocities and forces from the current state (after editing it).
+    pub fn forward(&mut self) {
+        self.data.forward();
+    }
+
+    fn body_id(&self, name: &str) -> Result<usize, SimError> {
+        let model = self.data.model();
+        model.name_to_id(MjtObjBase::mjOBJ_BODY, name).ok_or_else(|| SimError::UnknownName {
+            kind: "body",
+            name: name.into(),
+            valid: names(model, MjtObjBase::mjOBJ_BODY, model.ffi().nbody as usize).join(", "),
+        })
+    }
+}
+
+impl ArmIndex {
+    fn resolve(model: &MjModel, scene: &Path) -> Result<Self, SimError> {
+        let find = |kind: MjtObjBase, label: &'static str, name: &str| {
+            model.name_to_id(kind, name).ok_or_else(|| SimError::MissingElement {
+                path: scene.to_path_buf(),
+                kind: label,
+                name: name.into(),
+            })
+        };
+        let joint = |name: &str| find(MjtObjBase::mjOBJ_JOINT, "joint", name);
+        let mut qpos = [0; 7];
+        let mut dof = [0; 7];
+        let mut motor = [0; 7];
+        for i in 0..7 {
+            let j = joint(ARM_JOINTS[i])?;
+            qpos[i] = model.jnt_qposadr()[j] as usize;
+            dof[i] = model.jnt_dofadr()[j] as usize;
+            motor[i] = find(MjtObjBase::mjOBJ_ACTUATOR, "actuator", ARM_MOTORS[i])?;
+        }
+        let mut finger_qpos = [0; 2];
+        let mut finger_dof = [0; 2];
+        for i in 0..2 {
+            let j = joint(FINGER_JOINTS[i])?;
+            finger_qpos[i] = model.jnt_qposadr()[j] as usize;
+            finger_dof[i] = model.jnt_dofadr()[j] as usize;
+        }
+        Ok(Self {
+            qpos,
+            dof,
+            motor,
+            finger_qpos,
+            finger_dof,
+            gripper: find(MjtObjBase::mjOBJ_ACTUATOR, "actuator", GRIPPER_ACTUATOR)?,
+            tcp_site: find(MjtObjBase::mjOBJ_SITE, "site", TCP_SITE)?,
+            base_body: find(MjtObjBase::mjOBJ_BODY, "body", BASE_BODY)?,
+        })
+    }
+}
+
+/// A pose from MuJoCo's position and row-major rotation matrix.
+pub(crate) fn pose_from(pos: &[f64; 3], mat: &[f64; 9]) -> Isometry3<f64> {
+    let rot = Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(mat));
+    Isometry3::from_parts(Translation3::new(pos[0], pos[1], pos[2]), UnitQuaternion::from_rotation_matrix(&rot))
+}
+
+fn check_finite(what: &'static str, values: &[f64]) -> Result<(), SimError> {
+    match values.iter().position(|v| !v.is_finite()) {
+        None => Ok(()),
+        Some(i) => Err(SimError::InvalidInput { what, detail: format!("element {i} is {}", values[i]) }),
+    }
+}
+
+/// The 7 joint angles of `<numeric name="q_NAME">`, if the scene defines it.
+fn named_posture(model: &MjModel, name: &str) -> Option<JointVector> {
+    let id = model.name_to_id(MjtObjBase::mjOBJ_NUMERIC, &format!("q_{name}"))?;
+    let adr = model.numeric_adr()[id] as usize;
+    let size = model.numeric_size()[id] as usize;
+    (size == 7).then(|| JointVector::from_column_slice(&model.numeric_data()[adr..adr + 7]))
+}
+
+fn posture_names(model: &MjModel) -> Vec<String> {
+    let mut out = names(model, MjtObjBase::mjOBJ_KEY, model.ffi().nkey as usize);
+    out.extend(
+        names(model, MjtObjBase::mjOBJ_NUMERIC, model.ffi().nnumeric as usize)
+            .into_iter()
+            .filter_map(|n| n.strip_prefix("q_").map(str::to_owned)),
+    );
+    out
+}
+
+pub(crate) fn names(model: &MjModel, kind: MjtObjBase, count: usize) -> Vec<String> {
+    (0..count).filter_map(|i| model.id_to_name(kind, i).map(str::to_owned)).collect()
+}

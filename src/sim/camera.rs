@@ -11,10 +11,9 @@
 //!   `R_world_cv = R_world_mujoco * diag(1, -1, -1)`.
 use mujoco_rs::prelude::*;
 use mujoco_rs::renderer::MjRenderer;
-use mujoco_rs::wrappers::mj_model::MjtObjBase;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 
-use super::world::{World, names};
+use super::world::World;
 use super::SimError;
 
 /// The default image size (pixels, square), as in the paper and RLBench's 128x128 setting.
@@ -98,9 +97,7 @@ impl CameraRig {
                 ),
             });
         }
-        let ncam = model.ffi().ncam as usize;
-        let cameras: Vec<(String, usize)> =
-            names(model, MjtObjBase::mjOBJ_CAMERA, ncam).into_iter().zip(0..ncam).collect();
+        let cameras: Vec<(String, usize)> = world.camera_names().into_iter().zip(0..).collect();
         let mut options = MjvOption::default();
         options.flags[MjtVisFlag::mjVIS_CONVEXHULL as usize] = u8::from(visuals == Visuals::Fast);
         let renderer = MjRenderer::builder()

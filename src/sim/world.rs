@@ -93,6 +93,12 @@ impl World {
         &self.data
     }
 
+    /// Names of the scene's cameras, in model order.
+    pub fn camera_names(&self) -> Vec<String> {
+        let model = self.model();
+        names(model, MjtObjBase::mjOBJ_CAMERA, model.ffi().ncam as usize)
+    }
+
     /// Physics timestep (s).
     pub fn timestep(&self) -> f64 {
         self.model().ffi().opt.timestep

@@ -1,0 +1,87 @@
+//! Bad input gets a clear error that says what is wrong and what to do, never a panic.
+mod common;
+
+use flowram::deps::Deps;
+use flowram::sim::{SimError, World};
+
+fn stderr_of(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn assert_clean_failure(out: &std::process::Output) -> String {
+    let err = stderr_of(out);
+    assert_eq!(out.status.code(), Some(1), "exit code 1 for a user error; stderr: {err}");
+    assert!(!err.contains("panicked"), "no panic: {err}");
+    err
+}
+
+#[test]
+fn missing_setup_names_the_setup_script() {
+    let scene = flowram::sim::scene::resolve_scene("default").unwrap();
+    let err = World::load(&scene, &Deps::at("/nonexistent/flowram-deps")).unwrap_err();
+    assert!(matches!(err, SimError::MissingDependency(_)));
+    assert!(err.to_string().contains("scripts/setup.sh"), "{err}");
+
+    let out = common::flowram()
+        .env("FLOWRAM_DEPS", "/nonexistent/flowram-deps")
+        .args(["render", "--out", "/tmp/flowram-never-written"])
+        .output()
+        .unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("scripts/setup.sh"), "{err}");
+    assert!(!std::path::Path::new("/tmp/flowram-never-written").exists());
+}
+
+#[test]
+fn missing_scene_file_names_the_path() {
+    let err = World::load_named("/nonexistent/scene.xml").unwrap_err().to_string();
+    assert!(err.contains("/nonexistent/scene.xml"), "{err}");
+    let err = World::load_named("no_such_scene").unwrap_err().to_string();
+    assert!(err.contains("no_such_scene.xml") && err.contains("not found"), "{err}");
+}
+
+#[test]
+fn malformed_mjcf_gives_mujocos_message_and_the_path() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("broken.xml");
+    std::fs::write(&path, "<mujoco><worldbody><body></mujoco>").unwrap();
+    let err = World::load(&path, &Deps::locate()).unwrap_err();
+    let text = err.to_string();
+    assert!(matches!(err, SimError::Load { .. }), "{err:?}");
+    assert!(text.contains(&path.display().to_string()), "{text}");
+    assert!(text.contains("XML"), "MuJoCo's own parser message is kept: {text}");
+
+    let out = common::flowram().args(["render", "--scene"]).arg(&path).args(["--out"]).arg(dir.path().join("out")).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("broken.xml"), "{err}");
+}
+
+#[test]
+fn scene_without_the_robot_mount_says_what_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("bare.xml");
+    std::fs::write(&path, "<mujoco><worldbody><geom type='plane' size='1 1 1'/></worldbody></mujoco>").unwrap();
+    let err = World::load(&path, &Deps::locate()).unwrap_err().to_string();
+    assert!(err.contains("panda_mount"), "{err}");
+}
+
+#[test]
+fn unknown_camera_lists_the_valid_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = common::flowram().args(["render", "--camera", "top", "--out"]).arg(dir.path()).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("front, left_shoulder, right_shoulder, wrist"), "{err}");
+    let out = common::flowram().args(["bench", "render", "--camera", "top", "--frames", "1", "--repeats", "1"]).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("front, left_shoulder, right_shoulder, wrist"), "{err}");
+}
+
+#[test]
+fn image_size_out_of_range_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for size in ["0", "4096"] {
+        let out = common::flowram().args(["render", "--size", size, "--out"]).arg(dir.path()).output().unwrap();
+        let err = assert_clean_failure(&out);
+        assert!(err.contains("image size") && err.contains("512"), "{err}");
+    }
+}

@@ -74,3 +74,10 @@ pub fn models_dir() -> PathBuf {
         .map(PathBuf::from)
         .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("models"))
 }
+
+/// The project's `controllers/` folder (limits and controller profiles, TOML).
+pub fn controllers_dir() -> PathBuf {
+    std::env::var_os("FLOWRAM_CONTROLLERS")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| Path::new(env!("CARGO_MANIFEST_DIR")).join("controllers"))
+}

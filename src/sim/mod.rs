@@ -12,4 +12,5 @@ pub mod world;
 pub use camera::{CameraRig, Intrinsics, RgbdFrame, Visuals};
 pub use cloud::{PointCloud, Workspace};
 pub use error::SimError;
-pub use world::{ArmState, JointVector, World};
+pub use crate::robot::JointVector;
+pub use world::{ArmState, World};

@@ -6,14 +6,12 @@ use std::sync::Arc;
 
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
-use nalgebra::{Isometry3, Matrix3, Rotation3, SVector, Translation3, UnitQuaternion};
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 
 use super::SimError;
 use super::scene::{self, ARM_JOINTS, ARM_MOTORS, BASE_BODY, FINGER_JOINTS, GRIPPER_ACTUATOR, TCP_SITE};
 use crate::deps::Deps;
-
-/// Seven joint values of the arm (rad, rad/s or Nm), base to flange.
-pub type JointVector = SVector<f64, 7>;
+use crate::robot::JointVector;
 
 /// What a torque-controlled arm reports every tick.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -1,9 +1,13 @@
-//! The arm's model: its kinematics and dynamics through Pinocchio (`pinocchio.rs` and the C++
-//! shim in `shim/`), built from an [`ArmDescription`] that the simulator exports so both
-//! describe the same robot, and its limits (`controllers/panda_limits.toml`).
+//! The arm's model: kinematics and dynamics through Pinocchio (`pinocchio.rs` over the C++ shim
+//! in `shim/`), built from an [`ArmDescription`] that the simulator exports so both describe the
+//! same robot; and the arm's limits (`controllers/panda_limits.toml`).
+mod description;
 mod limits;
+mod pinocchio;
 
+pub use description::{ArmDescription, BodyInertia, LinkDescription};
 pub use limits::JointLimits;
+pub use pinocchio::{Dynamics, Jacobian, JointMatrix, Kinematics, KinematicsError, ModelError};
 
 use nalgebra::SVector;
 

@@ -13,4 +13,4 @@ pub use camera::{CameraRig, Intrinsics, RgbdFrame, Visuals};
 pub use cloud::{PointCloud, Workspace};
 pub use error::SimError;
 pub use crate::robot::JointVector;
-pub use world::{ArmState, World};
+pub use world::{ArmDynamicsReference, ArmState, World};

@@ -1,6 +1,7 @@
 //! flowram: a FlowRAM keyframe policy and a real-time torque-control stack for a
 //! MuJoCo-simulated Franka Panda. See README.md.
 pub mod config;
+pub mod control;
 pub mod deps;
 pub mod files;
 pub mod robot;

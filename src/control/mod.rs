@@ -1,0 +1,6 @@
+//! Everything that runs every keyframe or every 1 ms tick: IK, the jerk-limited trajectory,
+//! the operational-space controller (a QP solved with OSQP), the gripper, and the runner that
+//! drives a robot backend. `control` knows neither MuJoCo nor Pinocchio: it sees the arm
+//! through `robot::Kinematics` and the [`backend::RobotBackend`] trait.
+pub mod ik;
+pub mod pose_error;

@@ -4,3 +4,4 @@
 //! through `robot::Kinematics` and the [`backend::RobotBackend`] trait.
 pub mod ik;
 pub mod pose_error;
+pub mod trajectory;

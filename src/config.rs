@@ -26,13 +26,18 @@ pub enum Quantity {
     AngularJerk,
     Length,
     Velocity,
+    Acceleration,
     Torque,
     TorqueRate,
+    /// Joint damping (torque per joint velocity).
+    JointDamping,
     Time,
     /// Gain on an error, per second squared: stiffness of an inertia-decoupled task (= w_n^2).
     PerSecondSquared,
-    /// Gain per second (damping per unit inertia, integral gains, rates).
+    /// Gain per second (velocity per unit error).
     PerSecond,
+    /// Gain per second cubed: integral gain of an inertia-decoupled task.
+    PerSecondCubed,
     Dimensionless,
 }
 
@@ -47,11 +52,14 @@ impl Quantity {
             Quantity::AngularJerk => &[("rad/s^3", 1.0), ("deg/s^3", DEG)],
             Quantity::Length => &[("m", 1.0), ("cm", 0.01), ("mm", 0.001)],
             Quantity::Velocity => &[("m/s", 1.0), ("mm/s", 0.001)],
+            Quantity::Acceleration => &[("m/s^2", 1.0)],
             Quantity::Torque => &[("Nm", 1.0), ("N*m", 1.0)],
+            Quantity::JointDamping => &[("Nm*s/rad", 1.0)],
             Quantity::TorqueRate => &[("Nm/s", 1.0), ("N*m/s", 1.0)],
-            Quantity::Time => &[("s", 1.0), ("ms", 0.001)],
+            Quantity::Time => &[("s", 1.0), ("ms", 0.001), ("us", 1e-6)],
             Quantity::PerSecondSquared => &[("1/s^2", 1.0)],
             Quantity::PerSecond => &[("1/s", 1.0)],
+            Quantity::PerSecondCubed => &[("1/s^3", 1.0)],
             Quantity::Dimensionless => &[("1", 1.0)],
         }
     }

@@ -2,6 +2,12 @@
 //! the operational-space controller (a QP solved with OSQP), the gripper, and the runner that
 //! drives a robot backend. `control` knows neither MuJoCo nor Pinocchio: it sees the arm
 //! through `robot::Kinematics` and the [`backend::RobotBackend`] trait.
+pub mod backend;
+pub mod controller;
+pub mod gripper;
 pub mod ik;
+pub mod osc;
+pub mod osc_config;
 pub mod pose_error;
+pub mod runner;
 pub mod trajectory;

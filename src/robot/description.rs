@@ -48,6 +48,9 @@ pub struct LinkDescription {
     pub inertia: BodyInertia,
     /// Rotor inertia added to the mass-matrix diagonal (kg m^2).
     pub armature: f64,
+    /// Dry (Coulomb) friction of the joint (Nm) and viscous damping (Nm s/rad).
+    pub friction: f64,
+    pub damping: f64,
 }
 
 /// The arm from its base frame to the TCP.

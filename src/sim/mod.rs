@@ -1,6 +1,7 @@
 //! The simulated world. `sim` is the only module that talks to MuJoCo: it composes the scene,
 //! steps the physics at 1 kHz, reads and writes the arm's state, and renders the cameras into
 //! RGB, depth and world-frame point clouds.
+pub mod backend;
 pub mod camera;
 pub mod cloud;
 mod error;

@@ -273,6 +273,8 @@ impl World {
             axis: Vector3::z(),
             inertia: BodyInertia::ZERO,
             armature: 0.0,
+            friction: 0.0,
+            damping: 0.0,
         }; 7];
         let mut parent = self.arm.base_body;
         for (i, name) in ARM_JOINTS.iter().enumerate() {
@@ -290,6 +292,8 @@ impl World {
                 axis: Vector3::from(m.jnt_axis()[j]).normalize(),
                 inertia: inertia_of(b),
                 armature: m.dof_armature()[m.jnt_dofadr()[j] as usize],
+                friction: m.dof_frictionloss()[m.jnt_dofadr()[j] as usize],
+                damping: m.dof_damping()[m.jnt_dofadr()[j] as usize],
             };
             bodies[i] = b;
             parent = b;

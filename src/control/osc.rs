@@ -1,0 +1,333 @@
+//! The operational-space controller, solved as a QP with OSQP every tick.
+//!
+//! Decision variable: the joint accelerations q̈ (7). With gravity compensated by the robot
+//! (the real Panda in torque mode, MuJoCo's gravcomp in simulation), the torque is
+//! tau = M q̈ + C q̇ + F, with F the model's joint friction (compensated to the configured
+//! fraction). Cost:
+//!
+//!   |J q̈ + J̇q̇ - a_des|²_W  +  w_n |N (q̈ - q̈_posture)|²  +  eps |q̈|²
+//!
+//! with a_des = a_ref + Kp e + Kd ė + Ki ∫e (the TCP pose error e against the reference, the
+//! integral only near the reference), N = I - J⁺J the Jacobian's nullspace projector, and
+//! q̈_posture a PD pull to the reference joint posture. Constraints: joint torques within the
+//! rated torques and within 1 Nm of the previous tick's (torque rate); joint accelerations
+//! within bounds that keep positions and velocities inside their limits over a short horizon.
+//!
+//! The matrices keep one dense sparsity pattern (the `*_dense` constructors keep explicit
+//! zeros), are updated in place, and the solver is warm-started: nothing allocates per tick.
+//! If OSQP fails or runs past its time limit, the tick uses a damping torque instead (within
+//! the same torque and rate limits), counted in [`OscStats`]. The output is never NaN.
+use std::time::Duration;
+
+use nalgebra::{Isometry3, Matrix6, SMatrix, Vector3, Vector6};
+use osqp::{CscMatrix, Problem, Settings, Status};
+
+use super::osc_config::OscConfig;
+use super::pose_error::pose_error;
+use super::trajectory::JointSetpoint;
+use crate::robot::{Dynamics, JointLimits, JointMatrix, JointVector};
+
+const N: usize = 7;
+/// Constraint rows: 7 torque rows (A = M), 7 acceleration rows (A = I).
+const M: usize = 14;
+
+/// Where the TCP and the posture should be at this tick (base frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TaskReference {
+    pub pose: Isometry3<f64>,
+    /// Linear and angular velocity (m/s, rad/s).
+    pub twist: Vector6<f64>,
+    /// Linear and angular acceleration (feed-forward).
+    pub acceleration: Vector6<f64>,
+    /// Joint posture for the nullspace (the trajectory's joint reference).
+    pub posture: JointSetpoint,
+}
+
+impl TaskReference {
+    /// The Cartesian reference of a joint reference: FK, J q̇, J q̈ + J̇ q̇ at the reference.
+    pub fn from_joint_setpoint(setpoint: &JointSetpoint, at_reference: &Dynamics) -> Self {
+        Self {
+            pose: at_reference.tcp,
+            twist: at_reference.jacobian * setpoint.dq,
+            acceleration: at_reference.jacobian * setpoint.ddq + at_reference.jdot_qdot,
+            posture: *setpoint,
+        }
+    }
+}
+
+/// Counts over the controller's life.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct OscStats {
+    pub ticks: u64,
+    /// Ticks where the QP failed or timed out and the damping torque was used.
+    pub fallbacks: u64,
+}
+
+/// One tick's result.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct OscOutput {
+    /// Joint torques to send (gravity excluded: the robot compensates it).
+    pub tau: JointVector,
+    /// The TCP pose error against the reference (position m, rotation vector rad).
+    pub error: Vector6<f64>,
+    pub fallback: bool,
+}
+
+#[derive(Debug, thiserror::Error)]
+#[error("cannot set up the OSC's QP: {0}")]
+pub struct OscSetupError(String);
+
+/// The controller and its solver state.
+/// The arm's joint friction as the controller models it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct JointFriction {
+    /// Dry friction (Nm).
+    pub coulomb: JointVector,
+    /// Viscous damping (Nm s/rad).
+    pub viscous: JointVector,
+}
+
+impl JointFriction {
+    pub fn of(description: &crate::robot::ArmDescription) -> Self {
+        Self {
+            coulomb: JointVector::from_fn(|i, _| description.links[i].friction),
+            viscous: JointVector::from_fn(|i, _| description.links[i].damping),
+        }
+    }
+}
+
+pub struct Osc {
+    config: OscConfig,
+    limits: JointLimits,
+    friction: JointFriction,
+    dt: f64,
+    problem: Problem,
+    p: CscMatrix<'static>,
+    a: CscMatrix<'static>,
+    lin: [f64; N],
+    lower: [f64; M],
+    upper: [f64; M],
+    tau_prev: JointVector,
+    integral: Vector6<f64>,
+    stats: OscStats,
+}
+
+impl std::fmt::Debug for Osc {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Osc").field("stats", &self.stats).field("tau_prev", &self.tau_prev).finish()
+    }
+}
+
+impl Osc {
+    pub fn new(config: OscConfig, limits: JointLimits, friction: JointFriction, dt: f64) -> Result<Self, OscSetupError> {
+        // Dense patterns: P's upper triangle (28 entries), A fully dense (98 entries).
+        let mut p = CscMatrix::from_column_iter_dense(N, N, std::iter::repeat_n(0.0, N * N)).into_upper_tri();
+        let mut a = CscMatrix::from_column_iter_dense(M, N, std::iter::repeat_n(0.0, M * N));
+        write_upper(p.data.to_mut(), &JointMatrix::identity());
+        write_constraints(a.data.to_mut(), &JointMatrix::identity());
+        let lin = [0.0; N];
+        let (lower, upper) = ([-1.0; M], [1.0; M]);
+        let settings = Settings::default()
+            .verbose(false)
+            .warm_starting(true)
+            .polishing(false)
+            .adaptive_rho(true)
+            .adaptive_rho_interval(Some(25))
+            .eps_abs(1e-6)
+            .eps_rel(1e-6)
+            .max_iter(config.max_iterations)
+            .check_termination(Some(10))
+            .time_limit(Some(Duration::from_secs_f64(config.time_limit)));
+        let problem = Problem::new(&p, &lin, &a, &lower, &upper, &settings).map_err(|e| OscSetupError(format!("{e:?}")))?;
+        Ok(Self {
+            config,
+            limits,
+            friction,
+            dt,
+            problem,
+            p,
+            a,
+            lin,
+            lower,
+            upper,
+            tau_prev: JointVector::zeros(),
+            integral: Vector6::zeros(),
+            stats: OscStats::default(),
+        })
+    }
+
+    pub fn config(&self) -> &OscConfig {
+        &self.config
+    }
+
+    pub fn stats(&self) -> OscStats {
+        self.stats
+    }
+
+    /// Forget the integral; `tau` is the torque currently applied (rate limits start from it).
+    pub fn reset(&mut self, tau: &JointVector) {
+        self.tau_prev = *tau;
+        self.integral = Vector6::zeros();
+    }
+
+    /// The torque for this tick. `dynamics` is the model at the measured state (q, q̇).
+    pub fn compute(&mut self, q: &JointVector, dq: &JointVector, dynamics: &Dynamics, reference: &TaskReference) -> OscOutput {
+        self.stats.ticks += 1;
+        let c = &self.config;
+        let (tau_lo, tau_hi) = self.torque_bounds();
+        let error = pose_error(&reference.pose, &dynamics.tcp);
+        if !(q.iter().chain(dq.iter()).all(|v| v.is_finite()) && error.iter().all(|v| v.is_finite())) {
+            return self.fallback(dq, &tau_lo, &tau_hi, error);
+        }
+        let jac = &dynamics.jacobian;
+        let error_rate = reference.twist - jac * dq;
+
+        // Integral, only near the reference (conditional integration), bounded.
+        for (part, gains) in [(0usize, &c.position), (3usize, &c.orientation)] {
+            let e = error.fixed_rows::<3>(part).into_owned();
+            let mut sum = self.integral.fixed_rows::<3>(part).into_owned();
+            if e.norm() < gains.integral_zone {
+                sum += e * self.dt;
+            }
+            let push = gains.integral.component_mul(&sum).norm();
+            if push > gains.integral_limit {
+                sum *= gains.integral_limit / push;
+            }
+            self.integral.fixed_rows_mut::<3>(part).copy_from(&sum);
+        }
+        let gains6 = |f: fn(&super::osc_config::AxisGains) -> Vector3<f64>| -> Vector6<f64> {
+            let (p, o) = (f(&c.position), f(&c.orientation));
+            Vector6::new(p.x, p.y, p.z, o.x, o.y, o.z)
+        };
+        let kp = gains6(|g| g.stiffness);
+        let kd = gains6(|g| g.damping());
+        let ki = gains6(|g| g.integral);
+        let a_des = reference.acceleration + kp.component_mul(&error) + kd.component_mul(&error_rate) + ki.component_mul(&self.integral);
+        let b = a_des - dynamics.jdot_qdot;
+
+        // Posture in the nullspace.
+        let kn = c.nullspace_stiffness;
+        let dn = 2.0 * c.nullspace_damping_ratio * kn.sqrt();
+        let posture = reference.posture.ddq + (reference.posture.q - q) * kn + (reference.posture.dq - dq) * dn;
+        let jjt = jac * jac.transpose() + Matrix6::identity() * 1e-6;
+        let pinv: SMatrix<f64, 7, 6> = match jjt.cholesky() {
+            Some(ch) => jac.transpose() * ch.inverse(),
+            None => return self.fallback(dq, &tau_lo, &tau_hi, error),
+        };
+        let null = JointMatrix::identity() - pinv * jac;
+        let null_sq = null.transpose() * null;
+
+        let w = Vector6::new(c.position_weight, c.position_weight, c.position_weight, c.orientation_weight, c.orientation_weight, c.orientation_weight);
+        let jtw = jac.transpose() * Matrix6::from_diagonal(&w);
+        let hessian = jtw * jac + null_sq * c.posture_weight + JointMatrix::identity() * c.regularization;
+        let gradient = -(jtw * b + null_sq * posture * c.posture_weight);
+
+        // Friction compensation (model-based): dry friction toward where the posture should
+        // go, viscous on the measured velocity.
+        let toward = reference.posture.dq + (reference.posture.q - q) * c.friction_direction_gain;
+        let friction = (self.friction.coulomb.component_mul(&toward.map(|v| (v / c.friction_smoothing).tanh()))
+            + self.friction.viscous.component_mul(dq))
+            * c.friction_compensation;
+        let offset = dynamics.coriolis + friction;
+
+        // Bounds: torque rows (on M q̈ = tau - C q̇ - friction) and acceleration rows.
+        let mass = &dynamics.mass;
+        let ddq_bounds = self.acceleration_bounds(q, dq);
+        for i in 0..N {
+            self.lower[i] = tau_lo[i] - offset[i];
+            self.upper[i] = tau_hi[i] - offset[i];
+            self.lower[N + i] = ddq_bounds.0[i];
+            self.upper[N + i] = ddq_bounds.1[i];
+            self.lin[i] = gradient[i];
+        }
+        write_upper(self.p.data.to_mut(), &hessian);
+        write_constraints(self.a.data.to_mut(), mass);
+        self.problem.update_P(&self.p);
+        self.problem.update_A(&self.a);
+        self.problem.update_lin_cost(&self.lin);
+        self.problem.update_bounds(&self.lower, &self.upper);
+
+        let ddq = match self.problem.solve() {
+            Status::Solved(s) | Status::SolvedInaccurate(s) => JointVector::from_column_slice(s.x()),
+            _ => return self.fallback(dq, &tau_lo, &tau_hi, error),
+        };
+        let tau = mass * ddq + offset;
+        if !tau.iter().all(|v| v.is_finite()) {
+            return self.fallback(dq, &tau_lo, &tau_hi, error);
+        }
+        // OSQP meets its bounds to its tolerance; the clamp makes the limits exact.
+        let tau = tau.zip_zip_map(&tau_lo, &tau_hi, |t, lo, hi| t.clamp(lo, hi));
+        self.tau_prev = tau;
+        OscOutput { tau, error, fallback: false }
+    }
+
+    /// The damping torque within this tick's limits, for ticks where no model is available
+    /// (counted as a fallback).
+    pub fn safe_torque(&mut self, dq: &JointVector) -> OscOutput {
+        let (lo, hi) = self.torque_bounds();
+        self.fallback(dq, &lo, &hi, Vector6::zeros())
+    }
+
+    /// Torque bounds for this tick: rated torque, and at most the rated rate times dt away
+    /// from the previous tick's torque.
+    fn torque_bounds(&self) -> (JointVector, JointVector) {
+        let step = self.limits.torque_rate * self.dt;
+        let lo = JointVector::from_fn(|i, _| (-self.limits.torque[i]).max(self.tau_prev[i] - step[i]));
+        let hi = JointVector::from_fn(|i, _| self.limits.torque[i].min(self.tau_prev[i] + step[i]));
+        (lo, hi)
+    }
+
+    /// Accelerations that keep the joints inside their position limits (less the margin) and
+    /// velocity limits over the horizon, and within the acceleration limits.
+    fn acceleration_bounds(&self, q: &JointVector, dq: &JointVector) -> (JointVector, JointVector) {
+        let h = self.config.limit_horizon;
+        let margin = self.config.limit_margin;
+        let l = &self.limits;
+        let mut lo = JointVector::zeros();
+        let mut hi = JointVector::zeros();
+        for i in 0..N {
+            let pos_lo = 2.0 * (l.position_min[i] + margin - q[i] - dq[i] * h) / (h * h);
+            let pos_hi = 2.0 * (l.position_max[i] - margin - q[i] - dq[i] * h) / (h * h);
+            let vel_lo = (-l.velocity[i] - dq[i]) / h;
+            let vel_hi = (l.velocity[i] - dq[i]) / h;
+            lo[i] = pos_lo.max(vel_lo).max(-l.acceleration[i]);
+            hi[i] = pos_hi.min(vel_hi).min(l.acceleration[i]);
+            if lo[i] > hi[i] {
+                // Already outside what the horizon allows: brake toward the safe side.
+                let brake = (-dq[i] / h).clamp(-l.acceleration[i], l.acceleration[i]);
+                lo[i] = brake;
+                hi[i] = brake;
+            }
+        }
+        (lo, hi)
+    }
+
+    fn fallback(&mut self, dq: &JointVector, lo: &JointVector, hi: &JointVector, error: Vector6<f64>) -> OscOutput {
+        self.stats.fallbacks += 1;
+        let damping = -self.config.fallback_damping.component_mul(&dq.map(|v| if v.is_finite() { v } else { 0.0 }));
+        let tau = damping.zip_zip_map(lo, hi, |t, l, h| t.clamp(l, h));
+        self.tau_prev = tau;
+        OscOutput { tau, error: error.map(|v| if v.is_finite() { v } else { 0.0 }), fallback: true }
+    }
+}
+
+/// P's upper triangle in CSC order (column j holds rows 0..=j).
+fn write_upper(data: &mut [f64], m: &JointMatrix) {
+    let mut k = 0;
+    for j in 0..N {
+        for i in 0..=j {
+            data[k] = 0.5 * (m[(i, j)] + m[(j, i)]);
+            k += 1;
+        }
+    }
+}
+
+/// A = [M; I] column-major, every entry stored (explicit zeros keep the pattern fixed).
+fn write_constraints(data: &mut [f64], mass: &JointMatrix) {
+    for j in 0..N {
+        for i in 0..N {
+            data[j * M + i] = mass[(i, j)];
+            data[j * M + N + i] = if i == j { 1.0 } else { 0.0 };
+        }
+    }
+}

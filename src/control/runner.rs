@@ -1,0 +1,338 @@
+//! The runner: a list of keyframes (TCP pose + gripper) executed through IK -> ruckig -> OSC on
+//! a robot backend at 1 kHz. Joint goals are solved before the control loop (each seeded from
+//! the previous goal), so the tick never waits for IK. Per keyframe: move, settle to tolerance,
+//! then open or close the gripper. Every tick is checked against the arm's limits and can be
+//! logged (t, q, dq, tau, TCP pose, reference) for CSV.
+use nalgebra::{Isometry3, Vector6};
+use serde::{Deserialize, Serialize};
+
+use super::backend::{BackendError, Command, Cycle, RobotBackend, RobotState};
+use super::controller::ArmController;
+use super::gripper::{GraspState, Gripper};
+use super::ik::{InverseKinematics, target_pose};
+use super::pose_error::pose_error;
+use crate::robot::{JointLimits, JointVector};
+
+/// A keyframe: the TCP pose in the robot base frame (`panda_link0`, metres, quaternion
+/// [w, x, y, z]) and whether the gripper is open once the pose is reached.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Keyframe {
+    pub position: [f64; 3],
+    pub quat_wxyz: [f64; 4],
+    pub gripper_open: bool,
+}
+
+impl Keyframe {
+    /// A keyframe at a pose.
+    pub fn at(pose: &Isometry3<f64>, gripper_open: bool) -> Self {
+        let t = pose.translation.vector;
+        let q = pose.rotation.quaternion();
+        Self { position: [t.x, t.y, t.z], quat_wxyz: [q.w, q.i, q.j, q.k], gripper_open }
+    }
+}
+
+/// The keyframes file: `{"keyframes": [...]}`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyframeFile {
+    pub keyframes: Vec<Keyframe>,
+}
+
+/// How one keyframe went.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct KeyframeReport {
+    pub reached: bool,
+    /// TCP error after settling (before the gripper moved).
+    pub pos_err_mm: f64,
+    pub rot_err_deg: f64,
+    /// From the start of the motion to the end of the gripper action.
+    pub time_s: f64,
+    pub error: Option<String>,
+    /// What the gripper did (open, grasped, empty, blocked) if it was actuated.
+    pub gripper: Option<String>,
+}
+
+/// How the whole run went.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct RunReport {
+    pub keyframes: Vec<KeyframeReport>,
+    /// Ticks where a torque, torque-rate, joint-position or joint-velocity limit was exceeded.
+    pub limit_violations: u64,
+    /// Largest |value| / limit over the run.
+    pub max_torque_ratio: f64,
+    pub max_torque_rate_ratio: f64,
+    pub max_velocity_ratio: f64,
+    /// Ticks where the QP failed and the damping torque was used.
+    pub qp_fallbacks: u64,
+    pub ticks: u64,
+    pub sim_time_s: f64,
+}
+
+/// One tick of the log.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LogRow {
+    pub t: f64,
+    pub q: JointVector,
+    pub dq: JointVector,
+    pub tau: JointVector,
+    /// Measured TCP pose: x, y, z, qw, qx, qy, qz (base frame).
+    pub tcp: [f64; 7],
+    /// Reference TCP pose, same layout.
+    pub reference: [f64; 7],
+    pub q_ref: JointVector,
+}
+
+impl LogRow {
+    pub const CSV_HEADER: &'static str = "t,q1,q2,q3,q4,q5,q6,q7,dq1,dq2,dq3,dq4,dq5,dq6,dq7,tau1,tau2,tau3,tau4,tau5,tau6,tau7,\
+x,y,z,qw,qx,qy,qz,ref_x,ref_y,ref_z,ref_qw,ref_qx,ref_qy,ref_qz,q_ref1,q_ref2,q_ref3,q_ref4,q_ref5,q_ref6,q_ref7";
+
+    pub fn csv_line(&self, out: &mut String) {
+        use std::fmt::Write;
+        let _ = write!(out, "{:.4}", self.t);
+        for v in self.q.iter().chain(&self.dq).chain(&self.tau).chain(&self.tcp).chain(&self.reference).chain(&self.q_ref) {
+            let _ = write!(out, ",{v:.6}");
+        }
+        out.push('\n');
+    }
+}
+
+fn pose7(p: &Isometry3<f64>) -> [f64; 7] {
+    let t = p.translation.vector;
+    let q = p.rotation.quaternion();
+    [t.x, t.y, t.z, q.w, q.i, q.j, q.k]
+}
+
+/// Watches every tick for limit violations and keeps the worst ratios.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LimitMonitor {
+    limits: JointLimits,
+    dt: f64,
+    previous_tau: Option<JointVector>,
+    pub violations: u64,
+    pub max_torque_ratio: f64,
+    pub max_torque_rate_ratio: f64,
+    pub max_velocity_ratio: f64,
+}
+
+impl LimitMonitor {
+    pub fn new(limits: JointLimits, dt: f64) -> Self {
+        Self { limits, dt, previous_tau: None, violations: 0, max_torque_ratio: 0.0, max_torque_rate_ratio: 0.0, max_velocity_ratio: 0.0 }
+    }
+
+    /// Checks the state and the command of one tick.
+    pub fn check(&mut self, state: &RobotState, tau: &JointVector) {
+        let l = &self.limits;
+        let mut violated = false;
+        for i in 0..7 {
+            let torque = tau[i].abs() / l.torque[i];
+            let velocity = state.dq[i].abs() / l.velocity[i];
+            let rate = self.previous_tau.map_or(0.0, |p| (tau[i] - p[i]).abs() / (l.torque_rate[i] * self.dt));
+            self.max_torque_ratio = self.max_torque_ratio.max(torque);
+            self.max_velocity_ratio = self.max_velocity_ratio.max(velocity);
+            self.max_torque_rate_ratio = self.max_torque_rate_ratio.max(rate);
+            let outside = state.q[i] < l.position_min[i] || state.q[i] > l.position_max[i];
+            violated |= torque > 1.0 + 1e-9 || rate > 1.0 + 1e-9 || velocity > 1.0 || outside;
+        }
+        self.violations += u64::from(violated);
+        self.previous_tau = Some(*tau);
+    }
+}
+
+/// Executes keyframes on a backend.
+pub struct Runner {
+    pub controller: ArmController,
+    pub ik: InverseKinematics,
+    pub monitor: LimitMonitor,
+    gripper: Gripper,
+    log: Option<Vec<LogRow>>,
+    /// Longest time the gripper may take to open or close (s).
+    pub gripper_timeout: f64,
+}
+
+/// Why the control stack could not be assembled.
+#[derive(Debug, thiserror::Error)]
+pub enum StackError {
+    #[error(transparent)]
+    Model(#[from] crate::robot::ModelError),
+    #[error(transparent)]
+    Osc(#[from] super::osc::OscSetupError),
+}
+
+impl Runner {
+    /// The whole stack for an arm described by `description`, holding it at `state`.
+    pub fn build(
+        description: &crate::robot::ArmDescription,
+        limits: JointLimits,
+        config: super::osc_config::OscConfig,
+        state: &RobotState,
+        dt: f64,
+    ) -> Result<Self, StackError> {
+        let kinematics = crate::robot::Kinematics::new(description)?;
+        let controller = ArmController::new(kinematics, limits, config, dt, state)?;
+        let ik = InverseKinematics::new(super::ik::IkConfig::default(), limits);
+        Ok(Self::new(controller, ik, limits, dt, state.gripper_width > 0.04))
+    }
+
+    pub fn new(controller: ArmController, ik: InverseKinematics, limits: JointLimits, dt: f64, gripper_open: bool) -> Self {
+        Self {
+            controller,
+            ik,
+            monitor: LimitMonitor::new(limits, dt),
+            gripper: Gripper::new(gripper_open),
+            log: None,
+            gripper_timeout: 2.0,
+        }
+    }
+
+    /// Keep a log of every tick, with room reserved for `seconds` of run at `dt`.
+    pub fn enable_log(&mut self, seconds: f64, dt: f64) {
+        self.log = Some(Vec::with_capacity((seconds / dt) as usize));
+    }
+
+    pub fn log(&self) -> Option<&[LogRow]> {
+        self.log.as_deref()
+    }
+
+    /// The log as CSV text (header + one line per tick).
+    pub fn log_csv(&self) -> String {
+        let rows = self.log.as_deref().unwrap_or_default();
+        let mut out = String::with_capacity(64 + rows.len() * 400);
+        out.push_str(LogRow::CSV_HEADER);
+        out.push('\n');
+        for r in rows {
+            r.csv_line(&mut out);
+        }
+        out
+    }
+
+    /// Runs all keyframes; an unreachable keyframe is reported and skipped.
+    pub fn run<B: RobotBackend>(&mut self, backend: &mut B, keyframes: &[Keyframe]) -> Result<RunReport, BackendError> {
+        let start_ticks = self.monitor_ticks();
+        let t_start = backend.read_state().time;
+        let mut reports = Vec::with_capacity(keyframes.len());
+        let mut seed = backend.read_state().q;
+        for keyframe in keyframes {
+            let t0 = backend.read_state().time;
+            let goal = target_pose(keyframe.position, keyframe.quat_wxyz)
+                .and_then(|target| self.ik.solve(self.controller.kinematics_mut(), &target, &seed).map(|s| (target, s.q)));
+            let (target, q_goal) = match goal {
+                Ok(g) => g,
+                Err(e) => {
+                    reports.push(KeyframeReport { reached: false, pos_err_mm: f64::NAN, rot_err_deg: f64::NAN, time_s: 0.0, error: Some(e.to_string()), gripper: None });
+                    continue;
+                }
+            };
+            seed = q_goal;
+            self.controller.set_goal(&q_goal);
+            let error = self.move_and_settle(backend, &target)?;
+            let (ep, er) = (error.fixed_rows::<3>(0).norm(), error.fixed_rows::<3>(3).norm());
+            let c = self.controller.osc().config();
+            let reached = ep <= c.reached_position && er <= c.reached_orientation;
+            let gripper = if keyframe.gripper_open != self.gripper.is_open_commanded() {
+                Some(self.actuate_gripper(backend, keyframe.gripper_open)?)
+            } else {
+                None
+            };
+            reports.push(KeyframeReport {
+                reached,
+                pos_err_mm: ep * 1e3,
+                rot_err_deg: er.to_degrees(),
+                time_s: backend.read_state().time - t0,
+                error: (!reached).then(|| format!("settled {:.2} mm / {:.3} deg from the keyframe", ep * 1e3, er.to_degrees())),
+                gripper: gripper.map(|g| describe(&g)),
+            });
+        }
+        let m = &self.monitor;
+        Ok(RunReport {
+            keyframes: reports,
+            limit_violations: m.violations,
+            max_torque_ratio: m.max_torque_ratio,
+            max_torque_rate_ratio: m.max_torque_rate_ratio,
+            max_velocity_ratio: m.max_velocity_ratio,
+            qp_fallbacks: self.controller.osc().stats().fallbacks,
+            ticks: self.monitor_ticks() - start_ticks,
+            sim_time_s: backend.read_state().time - t_start,
+        })
+    }
+
+    fn monitor_ticks(&self) -> u64 {
+        self.controller.osc().stats().ticks
+    }
+
+    /// One control tick with limit checks and logging.
+    fn tick(&mut self, state: &RobotState) -> Command {
+        let command = self.controller.tick(state);
+        self.monitor.check(state, &command.tau);
+        if let Some(log) = self.log.as_mut()
+            && log.len() < log.capacity()
+        {
+            let reference = self.controller.task_reference().map_or([f64::NAN; 7], |r| pose7(&r.pose));
+            log.push(LogRow {
+                t: state.time,
+                q: state.q,
+                dq: state.dq,
+                tau: command.tau,
+                tcp: pose7(self.controller.tcp()),
+                reference,
+                q_ref: self.controller.reference().q,
+            });
+        }
+        command
+    }
+
+    /// Tracks the trajectory to its end, then waits until the TCP is within tolerance of
+    /// `target` and still, or the settle timeout passes. Returns the final pose error.
+    fn move_and_settle<B: RobotBackend>(&mut self, backend: &mut B, target: &Isometry3<f64>) -> Result<Vector6<f64>, BackendError> {
+        let c = *self.controller.osc().config();
+        let mut settle_start: Option<f64> = None;
+        let mut within = 0u32;
+        let mut error = Vector6::zeros();
+        backend.control(|state| {
+            let command = self.tick(state);
+            error = pose_error(target, self.controller.tcp());
+            if !self.controller.trajectory_finished() {
+                return Cycle::Continue(command);
+            }
+            let since = *settle_start.get_or_insert(state.time);
+            let close = error.fixed_rows::<3>(0).norm() <= 0.5 * c.reached_position
+                && error.fixed_rows::<3>(3).norm() <= 0.5 * c.reached_orientation
+                && state.dq.norm() < 0.01;
+            within = if close { within + 1 } else { 0 };
+            if within >= 50 || state.time - since >= c.settle_timeout {
+                Cycle::Finish(command)
+            } else {
+                Cycle::Continue(command)
+            }
+        })?;
+        Ok(error)
+    }
+
+    fn actuate_gripper<B: RobotBackend>(&mut self, backend: &mut B, open: bool) -> Result<GraspState, BackendError> {
+        self.controller.set_gripper(open);
+        self.gripper.command(open);
+        let t0 = backend.read_state().time;
+        let mut result = GraspState::Moving;
+        backend.control(|state| {
+            let command = self.tick(state);
+            result = self.gripper.update(state);
+            if result.is_settled() || state.time - t0 > self.gripper_timeout {
+                Cycle::Finish(command)
+            } else {
+                Cycle::Continue(command)
+            }
+        })?;
+        Ok(result)
+    }
+}
+
+fn describe(g: &GraspState) -> String {
+    match g {
+        GraspState::Moving => "still moving (timed out)".into(),
+        GraspState::Open => "open".into(),
+        GraspState::Grasped { width } => format!("grasped ({:.1} mm)", width * 1e3),
+        GraspState::Empty => "closed on nothing".into(),
+        GraspState::Blocked { width } => format!("blocked at {:.1} mm", width * 1e3),
+    }
+}
+

@@ -1,6 +1,9 @@
 //! Subcommands: parse arguments, call the library, print (text, or one JSON object with --json).
 mod bench;
 mod render;
+mod stack;
+mod track;
+mod tune;
 
 use std::process::ExitCode;
 
@@ -17,6 +20,10 @@ struct Cli {
 enum Command {
     /// Render every camera of a scene: RGB PNG, 16-bit depth PNG (mm), world-frame PLY cloud.
     Render(render::RenderArgs),
+    /// Execute keyframes on the simulated Panda (IK -> ruckig -> OSC at 1 kHz) and report each.
+    Track(track::TrackArgs),
+    /// Step response of a controller profile: rise time, overshoot, settling, plot.
+    Tune(tune::TuneArgs),
     /// Benchmarks that print the project's performance figures.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -26,6 +33,8 @@ pub fn run() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Render(args) => render::run(args),
+        Command::Track(args) => track::run(args),
+        Command::Tune(args) => tune::run(args),
         Command::Bench(cmd) => bench::run(cmd),
     };
     match result {

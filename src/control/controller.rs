@@ -147,7 +147,7 @@ impl ArmController {
             }
         }
         let t1 = Instant::now();
-        let at_reference = self.kinematics.dynamics(&self.reference.q, &self.reference.dq);
+        let at_reference = self.kinematics.task(&self.reference.q, &self.reference.dq);
         let measured = self.kinematics.dynamics(&state.q, &state.dq);
         let t2 = Instant::now();
         let output = match (at_reference, measured) {

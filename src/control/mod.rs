@@ -11,3 +11,4 @@ pub mod osc_config;
 pub mod pose_error;
 pub mod runner;
 pub mod trajectory;
+pub mod tuning;

@@ -25,11 +25,15 @@ use osqp::{CscMatrix, Problem, Settings, Status};
 use super::osc_config::OscConfig;
 use super::pose_error::pose_error;
 use super::trajectory::JointSetpoint;
-use crate::robot::{Dynamics, JointLimits, JointMatrix, JointVector};
+use crate::robot::{Dynamics, JointLimits, JointMatrix, JointVector, TaskKinematics};
 
 const N: usize = 7;
-/// Constraint rows: 7 torque rows (A = M), 7 acceleration rows (A = I).
+/// Variables: q̈ (7) and the slack of the acceleration rows (7).
+const NX: usize = 14;
+/// Constraint rows: 7 torque rows (A = [M 0]), 7 acceleration rows (A = [I I]).
 const M: usize = 14;
+/// The friction compensation changes by at most this fraction of the torque-rate limit per tick.
+const FRICTION_RAMP: f64 = 0.25;
 
 /// Where the TCP and the posture should be at this tick (base frame).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -45,7 +49,7 @@ pub struct TaskReference {
 
 impl TaskReference {
     /// The Cartesian reference of a joint reference: FK, J q̇, J q̈ + J̇ q̇ at the reference.
-    pub fn from_joint_setpoint(setpoint: &JointSetpoint, at_reference: &Dynamics) -> Self {
+    pub fn from_joint_setpoint(setpoint: &JointSetpoint, at_reference: &TaskKinematics) -> Self {
         Self {
             pose: at_reference.tcp,
             twist: at_reference.jacobian * setpoint.dq,
@@ -61,6 +65,11 @@ pub struct OscStats {
     pub ticks: u64,
     /// Ticks where the QP failed or timed out and the damping torque was used.
     pub fallbacks: u64,
+    /// Of those: infeasible constraints, iteration limit, time limit, anything else.
+    pub infeasible: u64,
+    pub iteration_limit: u64,
+    pub time_limit: u64,
+    pub other: u64,
 }
 
 /// One tick's result.
@@ -104,10 +113,11 @@ pub struct Osc {
     problem: Problem,
     p: CscMatrix<'static>,
     a: CscMatrix<'static>,
-    lin: [f64; N],
+    lin: [f64; NX],
     lower: [f64; M],
     upper: [f64; M],
     tau_prev: JointVector,
+    friction_torque: JointVector,
     integral: Vector6<f64>,
     stats: OscStats,
 }
@@ -120,12 +130,12 @@ impl std::fmt::Debug for Osc {
 
 impl Osc {
     pub fn new(config: OscConfig, limits: JointLimits, friction: JointFriction, dt: f64) -> Result<Self, OscSetupError> {
-        // Dense patterns: P's upper triangle (28 entries), A fully dense (98 entries).
-        let mut p = CscMatrix::from_column_iter_dense(N, N, std::iter::repeat_n(0.0, N * N)).into_upper_tri();
-        let mut a = CscMatrix::from_column_iter_dense(M, N, std::iter::repeat_n(0.0, M * N));
-        write_upper(p.data.to_mut(), &JointMatrix::identity());
+        // Dense patterns: P's upper triangle (105 entries), A fully dense (196 entries).
+        let mut p = CscMatrix::from_column_iter_dense(NX, NX, std::iter::repeat_n(0.0, NX * NX)).into_upper_tri();
+        let mut a = CscMatrix::from_column_iter_dense(M, NX, std::iter::repeat_n(0.0, M * NX));
+        write_upper(p.data.to_mut(), &JointMatrix::identity(), config.slack_weight);
         write_constraints(a.data.to_mut(), &JointMatrix::identity());
-        let lin = [0.0; N];
+        let lin = [0.0; NX];
         let (lower, upper) = ([-1.0; M], [1.0; M]);
         let settings = Settings::default()
             .verbose(false)
@@ -151,6 +161,7 @@ impl Osc {
             lower,
             upper,
             tau_prev: JointVector::zeros(),
+            friction_torque: JointVector::zeros(),
             integral: Vector6::zeros(),
             stats: OscStats::default(),
         })
@@ -167,6 +178,7 @@ impl Osc {
     /// Forget the integral; `tau` is the torque currently applied (rate limits start from it).
     pub fn reset(&mut self, tau: &JointVector) {
         self.tau_prev = *tau;
+        self.friction_torque = JointVector::zeros();
         self.integral = Vector6::zeros();
     }
 
@@ -180,7 +192,6 @@ impl Osc {
             return self.fallback(dq, &tau_lo, &tau_hi, error);
         }
         let jac = &dynamics.jacobian;
-        let error_rate = reference.twist - jac * dq;
 
         // Integral, only near the reference (conditional integration), bounded.
         for (part, gains) in [(0usize, &c.position), (3usize, &c.orientation)] {
@@ -202,7 +213,18 @@ impl Osc {
         let kp = gains6(|g| g.stiffness);
         let kd = gains6(|g| g.damping());
         let ki = gains6(|g| g.integral);
-        let a_des = reference.acceleration + kp.component_mul(&error) + kd.component_mul(&error_rate) + ki.component_mul(&self.integral);
+        // PD with the approach speed bounded: v_des = v_ref + sat(Kp/Kd e); a_des = a_ref +
+        // Kd (v_des - v) + Ki ∫e (the same as a_ref + Kp e + Kd ė while unsaturated).
+        let mut correction = kp.zip_map(&kd, |p, d| if d > 0.0 { p / d } else { 0.0 }).component_mul(&error);
+        for (part, limit) in [(0usize, c.position.max_speed), (3usize, c.orientation.max_speed)] {
+            let n = correction.fixed_rows::<3>(part).norm();
+            if n > limit {
+                correction.fixed_rows_mut::<3>(part).scale_mut(limit / n);
+            }
+        }
+        let velocity = jac * dq;
+        let desired_velocity = reference.twist + correction;
+        let a_des = reference.acceleration + kd.component_mul(&(desired_velocity - velocity)) + ki.component_mul(&self.integral);
         let b = a_des - dynamics.jdot_qdot;
 
         // Posture in the nullspace.
@@ -225,10 +247,14 @@ impl Osc {
         // Friction compensation (model-based): dry friction toward where the posture should
         // go, viscous on the measured velocity.
         let toward = reference.posture.dq + (reference.posture.q - q) * c.friction_direction_gain;
-        let friction = (self.friction.coulomb.component_mul(&toward.map(|v| (v / c.friction_smoothing).tanh()))
+        let target = (self.friction.coulomb.component_mul(&toward.map(|v| (v / c.friction_smoothing).tanh()))
             + self.friction.viscous.component_mul(dq))
             * c.friction_compensation;
-        let offset = dynamics.coriolis + friction;
+        // Ramp it: it switches sign with the direction, and a jump would eat the torque-rate
+        // budget of the tick.
+        let ramp = self.limits.torque_rate * self.dt * FRICTION_RAMP;
+        self.friction_torque = self.friction_torque.zip_zip_map(&target, &ramp, |prev, t, r| t.clamp(prev - r, prev + r));
+        let offset = dynamics.coriolis + self.friction_torque;
 
         // Bounds: torque rows (on M q̈ = tau - C q̇ - friction) and acceleration rows.
         let mass = &dynamics.mass;
@@ -240,7 +266,7 @@ impl Osc {
             self.upper[N + i] = ddq_bounds.1[i];
             self.lin[i] = gradient[i];
         }
-        write_upper(self.p.data.to_mut(), &hessian);
+        write_upper(self.p.data.to_mut(), &hessian, c.slack_weight);
         write_constraints(self.a.data.to_mut(), mass);
         self.problem.update_P(&self.p);
         self.problem.update_A(&self.a);
@@ -248,8 +274,17 @@ impl Osc {
         self.problem.update_bounds(&self.lower, &self.upper);
 
         let ddq = match self.problem.solve() {
-            Status::Solved(s) | Status::SolvedInaccurate(s) => JointVector::from_column_slice(s.x()),
-            _ => return self.fallback(dq, &tau_lo, &tau_hi, error),
+            Status::Solved(s) | Status::SolvedInaccurate(s) => JointVector::from_column_slice(&s.x()[..N]),
+            status => {
+                let counter = match status {
+                    Status::PrimalInfeasible(_) | Status::PrimalInfeasibleInaccurate(_) => &mut self.stats.infeasible,
+                    Status::MaxIterationsReached(_) => &mut self.stats.iteration_limit,
+                    Status::TimeLimitReached(_) => &mut self.stats.time_limit,
+                    _ => &mut self.stats.other,
+                };
+                *counter += 1;
+                return self.fallback(dq, &tau_lo, &tau_hi, error);
+            }
         };
         let tau = mass * ddq + offset;
         if !tau.iter().all(|v| v.is_finite()) {
@@ -311,23 +346,30 @@ impl Osc {
     }
 }
 
-/// P's upper triangle in CSC order (column j holds rows 0..=j).
-fn write_upper(data: &mut [f64], m: &JointMatrix) {
+/// P = [H 0; 0 w_s I]: upper triangle in CSC order (column j holds rows 0..=j).
+fn write_upper(data: &mut [f64], h: &JointMatrix, slack_weight: f64) {
     let mut k = 0;
-    for j in 0..N {
+    for j in 0..NX {
         for i in 0..=j {
-            data[k] = 0.5 * (m[(i, j)] + m[(j, i)]);
+            data[k] = match (i < N, j < N) {
+                (true, true) => 0.5 * (h[(i, j)] + h[(j, i)]),
+                (false, false) if i == j => slack_weight,
+                _ => 0.0,
+            };
             k += 1;
         }
     }
 }
 
-/// A = [M; I] column-major, every entry stored (explicit zeros keep the pattern fixed).
+/// A = [M 0; I I] column-major, every entry stored (explicit zeros keep the pattern fixed).
 fn write_constraints(data: &mut [f64], mass: &JointMatrix) {
-    for j in 0..N {
-        for i in 0..N {
-            data[j * M + i] = mass[(i, j)];
-            data[j * M + N + i] = if i == j { 1.0 } else { 0.0 };
+    for j in 0..NX {
+        for i in 0..M {
+            data[j * M + i] = match (i < N, j < N) {
+                (true, true) => mass[(i, j)],
+                (true, false) => 0.0,
+                (false, _) => f64::from(u8::from(i - N == j % N)),
+            };
         }
     }
 }

@@ -19,6 +19,8 @@ pub struct AxisGains {
     pub integral_zone: f64,
     /// Bound on the integral's acceleration (m/s^2 or rad/s^2).
     pub integral_limit: f64,
+    /// Fastest the error is closed (m/s or rad/s), on top of the reference's own velocity.
+    pub max_speed: f64,
 }
 
 impl AxisGains {
@@ -38,6 +40,8 @@ pub struct OscConfig {
     pub orientation_weight: f64,
     pub posture_weight: f64,
     pub regularization: f64,
+    /// Weight of the slack on the joint-limit acceleration rows (large: nearly hard).
+    pub slack_weight: f64,
     pub limit_horizon: f64,
     pub limit_margin: f64,
     pub max_iterations: u32,
@@ -68,8 +72,8 @@ impl OscConfig {
     }
 
     pub fn from_config(mut f: ConfigFile) -> Result<Self, ConfigError> {
-        let position = axis(&mut f, "task.position", Quantity::Length, Quantity::Acceleration)?;
-        let orientation = axis(&mut f, "task.orientation", Quantity::Angle, Quantity::AngularAcceleration)?;
+        let position = axis(&mut f, "task.position", Quantity::Length, Quantity::Acceleration, Quantity::Velocity)?;
+        let orientation = axis(&mut f, "task.orientation", Quantity::Angle, Quantity::AngularAcceleration, Quantity::AngularVelocity)?;
         let fraction = |f: &mut ConfigFile, field: &str| -> Result<f64, ConfigError> {
             let x = f.number_field(field, Sign::Positive)?;
             if x > 1.0 {
@@ -90,6 +94,7 @@ impl OscConfig {
             orientation_weight: f.number_field("qp.orientation_weight", Sign::Positive)?,
             posture_weight: f.number_field("qp.posture_weight", Sign::NonNegative)?,
             regularization: f.number_field("qp.regularization", Sign::Positive)?,
+            slack_weight: f.number_field("qp.slack_weight", Sign::Positive)?,
             limit_horizon: f.quantity("qp.limit_horizon", Quantity::Time, Sign::Positive)?,
             limit_margin: f.quantity("qp.limit_margin", Quantity::Angle, Sign::NonNegative)?,
             max_iterations: max_iterations as u32,
@@ -116,7 +121,7 @@ impl OscConfig {
     }
 }
 
-fn axis(f: &mut ConfigFile, section: &str, zone: Quantity, limit: Quantity) -> Result<AxisGains, ConfigError> {
+fn axis(f: &mut ConfigFile, section: &str, zone: Quantity, limit: Quantity, speed: Quantity) -> Result<AxisGains, ConfigError> {
     let v3 = |a: [f64; 3]| Vector3::from(a);
     Ok(AxisGains {
         stiffness: v3(f.quantities(&format!("{section}.stiffness"), Quantity::PerSecondSquared, Sign::NonNegative)?),
@@ -124,5 +129,6 @@ fn axis(f: &mut ConfigFile, section: &str, zone: Quantity, limit: Quantity) -> R
         integral: v3(f.quantities(&format!("{section}.integral"), Quantity::PerSecondCubed, Sign::NonNegative)?),
         integral_zone: f.quantity(&format!("{section}.integral_zone"), zone, Sign::NonNegative)?,
         integral_limit: f.quantity(&format!("{section}.integral_limit"), limit, Sign::NonNegative)?,
+        max_speed: f.quantity(&format!("{section}.max_speed"), speed, Sign::Positive)?,
     })
 }

@@ -51,6 +51,8 @@ pub struct KeyframeReport {
     pub error: Option<String>,
     /// What the gripper did (open, grasped, empty, blocked) if it was actuated.
     pub gripper: Option<String>,
+    /// Wall-clock time IK took for this keyframe (ms).
+    pub ik_ms: f64,
 }
 
 /// How the whole run went.
@@ -146,6 +148,7 @@ pub struct Runner {
     pub monitor: LimitMonitor,
     gripper: Gripper,
     log: Option<Vec<LogRow>>,
+    timings: Option<Vec<super::controller::TickTiming>>,
     /// Longest time the gripper may take to open or close (s).
     pub gripper_timeout: f64,
 }
@@ -181,6 +184,7 @@ impl Runner {
             monitor: LimitMonitor::new(limits, dt),
             gripper: Gripper::new(gripper_open),
             log: None,
+            timings: None,
             gripper_timeout: 2.0,
         }
     }
@@ -188,6 +192,15 @@ impl Runner {
     /// Keep a log of every tick, with room reserved for `seconds` of run at `dt`.
     pub fn enable_log(&mut self, seconds: f64, dt: f64) {
         self.log = Some(Vec::with_capacity((seconds / dt) as usize));
+    }
+
+    /// Keep each tick's compute time (room for `ticks` ticks).
+    pub fn enable_timing(&mut self, ticks: usize) {
+        self.timings = Some(Vec::with_capacity(ticks));
+    }
+
+    pub fn timings(&self) -> Option<&[super::controller::TickTiming]> {
+        self.timings.as_deref()
     }
 
     pub fn log(&self) -> Option<&[LogRow]> {
@@ -214,12 +227,14 @@ impl Runner {
         let mut seed = backend.read_state().q;
         for keyframe in keyframes {
             let t0 = backend.read_state().time;
+            let ik_start = std::time::Instant::now();
             let goal = target_pose(keyframe.position, keyframe.quat_wxyz)
                 .and_then(|target| self.ik.solve(self.controller.kinematics_mut(), &target, &seed).map(|s| (target, s.q)));
+            let ik_ms = ik_start.elapsed().as_secs_f64() * 1e3;
             let (target, q_goal) = match goal {
                 Ok(g) => g,
                 Err(e) => {
-                    reports.push(KeyframeReport { reached: false, pos_err_mm: f64::NAN, rot_err_deg: f64::NAN, time_s: 0.0, error: Some(e.to_string()), gripper: None });
+                    reports.push(KeyframeReport { reached: false, pos_err_mm: f64::NAN, rot_err_deg: f64::NAN, time_s: 0.0, error: Some(e.to_string()), gripper: None, ik_ms });
                     continue;
                 }
             };
@@ -241,6 +256,7 @@ impl Runner {
                 time_s: backend.read_state().time - t0,
                 error: (!reached).then(|| format!("settled {:.2} mm / {:.3} deg from the keyframe", ep * 1e3, er.to_degrees())),
                 gripper: gripper.map(|g| describe(&g)),
+                ik_ms,
             });
         }
         let m = &self.monitor;
@@ -256,6 +272,11 @@ impl Runner {
         })
     }
 
+    /// The limits the run is checked against.
+    pub fn monitor_limits(&self) -> &JointLimits {
+        &self.monitor.limits
+    }
+
     fn monitor_ticks(&self) -> u64 {
         self.controller.osc().stats().ticks
     }
@@ -263,6 +284,11 @@ impl Runner {
     /// One control tick with limit checks and logging.
     fn tick(&mut self, state: &RobotState) -> Command {
         let command = self.controller.tick(state);
+        if let Some(t) = self.timings.as_mut()
+            && t.len() < t.capacity()
+        {
+            t.push(self.controller.timing());
+        }
         self.monitor.check(state, &command.tau);
         if let Some(log) = self.log.as_mut()
             && log.len() < log.capacity()

@@ -7,7 +7,7 @@ mod pinocchio;
 
 pub use description::{ArmDescription, BodyInertia, LinkDescription};
 pub use limits::JointLimits;
-pub use pinocchio::{Dynamics, Jacobian, JointMatrix, Kinematics, KinematicsError, ModelError};
+pub use pinocchio::{Dynamics, Jacobian, JointMatrix, Kinematics, KinematicsError, ModelError, TaskKinematics};
 
 use nalgebra::SVector;
 

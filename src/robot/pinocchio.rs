@@ -49,6 +49,15 @@ unsafe extern "C" {
         coriolis: *mut f64,
         gravity: *mut f64,
     ) -> c_int;
+    fn fr_pin_arm_task(
+        arm: *mut FrPinArm,
+        q: *const f64,
+        dq: *const f64,
+        tcp_pos: *mut f64,
+        tcp_rot: *mut f64,
+        jac: *mut f64,
+        jdot_qdot: *mut f64,
+    ) -> c_int;
     fn fr_pin_arm_fk_jac(arm: *mut FrPinArm, q: *const f64, tcp_pos: *mut f64, tcp_rot: *mut f64, jac: *mut f64) -> c_int;
 }
 
@@ -65,6 +74,14 @@ pub struct Dynamics {
     pub coriolis: JointVector,
     /// Gravity torques g(q): tau = M q̈ + coriolis + gravity.
     pub gravity: JointVector,
+}
+
+/// The TCP's pose, Jacobian and J̇q̇ at one state (base frame).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TaskKinematics {
+    pub tcp: Isometry3<f64>,
+    pub jacobian: Jacobian,
+    pub jdot_qdot: Vector6<f64>,
 }
 
 /// A per-call failure (no allocation on this path).
@@ -188,6 +205,19 @@ impl Kinematics {
             )
         })?;
         Ok(Dynamics { tcp: isometry(&p, &r), jacobian, jdot_qdot, mass, coriolis, gravity })
+    }
+
+    /// TCP pose, Jacobian and J̇q̇ only (about a third of [`Kinematics::dynamics`]'s cost).
+    pub fn task(&mut self, q: &JointVector, dq: &JointVector) -> Result<TaskKinematics, KinematicsError> {
+        let mut p = Vector3::zeros();
+        let mut r = Matrix3::zeros();
+        let mut jacobian = Jacobian::zeros();
+        let mut jdot_qdot = Vector6::zeros();
+        // SAFETY: as in `dynamics`.
+        check(unsafe {
+            fr_pin_arm_task(self.raw.as_ptr(), q.as_ptr(), dq.as_ptr(), p.as_mut_ptr(), r.as_mut_ptr(), jacobian.as_mut_ptr(), jdot_qdot.as_mut_ptr())
+        })?;
+        Ok(TaskKinematics { tcp: isometry(&p, &r), jacobian, jdot_qdot })
     }
 
     /// TCP pose and Jacobian only (for IK).

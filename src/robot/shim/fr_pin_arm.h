@@ -43,6 +43,11 @@ int fr_pin_arm_compute(FrPinArm* arm, const double* q, const double* dq, double*
                        double* tcp_rot, double* jac, double* jdot_qdot, double* mass,
                        double* coriolis, double* gravity);
 
+/* The TCP's task quantities only (for a reference state): pose, Jacobian and J̇q̇, as in
+ * fr_pin_arm_compute, without the dynamics. */
+int fr_pin_arm_task(FrPinArm* arm, const double* q, const double* dq, double* tcp_pos,
+                    double* tcp_rot, double* jac, double* jdot_qdot);
+
 /* Cheap path for IK: TCP pose and 6x7 LOCAL_WORLD_ALIGNED Jacobian only. */
 int fr_pin_arm_fk_jac(FrPinArm* arm, const double* q, double* tcp_pos, double* tcp_rot,
                       double* jac);

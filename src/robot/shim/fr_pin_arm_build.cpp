@@ -131,6 +131,7 @@ extern "C" FrPinArm * fr_pin_arm_new(
 
       arm->data = pinocchio::Data(model);
       arm->jac.setZero(6, model.nv);
+      arm->zero.setZero(model.nv);
       set_err(err, err_len, "");
       return arm;
     }

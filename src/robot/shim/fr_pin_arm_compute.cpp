@@ -5,6 +5,7 @@
 #include "pinocchio/algorithm/compute-all-terms.hpp"
 #include "pinocchio/algorithm/frames.hpp"
 #include "pinocchio/algorithm/jacobian.hpp"
+#include "pinocchio/algorithm/kinematics.hpp"
 
 #include <cmath>
 #include <cstring>
@@ -93,6 +94,32 @@ extern "C" int fr_pin_arm_fk_jac(
   {
     pinocchio::computeJointJacobians(arm->model, arm->data, ConstVecMap(q, N));  // oMi + J
     write_pose_jac(*arm, tcp_pos, tcp_rot, jac);
+    return 0;
+  }
+  catch (...)
+  {
+    return 3;
+  }
+}
+
+extern "C" int fr_pin_arm_task(
+  FrPinArm * arm, const double * q, const double * dq, double * tcp_pos, double * tcp_rot,
+  double * jac, double * jdot_qdot)
+{
+  if (!arm || !q || !dq || !tcp_pos || !tcp_rot || !jac || !jdot_qdot)
+    return 1;
+  if (!all_finite(q, N) || !all_finite(dq, N))
+    return 2;
+  try
+  {
+    // Placements, velocities and bias accelerations (ddq = 0), then the Jacobian from them.
+    pinocchio::forwardKinematics(arm->model, arm->data, ConstVecMap(q, N), ConstVecMap(dq, N), arm->zero);
+    pinocchio::computeJointJacobians(arm->model, arm->data);
+    write_pose_jac(*arm, tcp_pos, tcp_rot, jac);
+    const pinocchio::Motion a = pinocchio::getFrameClassicalAcceleration(
+      arm->model, arm->data, arm->tcp_joint, arm->tcp_placement, pinocchio::LOCAL_WORLD_ALIGNED);
+    Eigen::Map<Eigen::Matrix<double, 6, 1>> jdq_out(jdot_qdot);
+    jdq_out = a.toVector();
     return 0;
   }
   catch (...)

@@ -11,4 +11,5 @@ struct FrPinArm
   pinocchio::JointIndex tcp_joint = 0;
   pinocchio::SE3 tcp_placement = pinocchio::SE3::Identity();  // TCP in tcp_joint's frame
   pinocchio::Data::Matrix6x jac;                                // preallocated 6 x nv
+  Eigen::VectorXd zero;                                         // nv zeros (ddq = 0)
 };

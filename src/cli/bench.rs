@@ -12,6 +12,39 @@ pub enum BenchCommand {
     Sim(SimArgs),
     /// RGB-D frames per second for one camera.
     Render(RenderBenchArgs),
+    /// Per-tick compute time of the control stack over a long tracking run, and IK time.
+    Control(ControlBenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ControlBenchArgs {
+    #[arg(long, default_value = "default")]
+    scene: String,
+    /// Controller profile (TOML); default controllers/osc.toml.
+    #[arg(long)]
+    config: Option<std::path::PathBuf>,
+    /// Keyframes in the tour (each a move of 10-20 cm and up to 0.4 rad from the home pose).
+    #[arg(long, default_value_t = 24)]
+    keyframes: usize,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize)]
+struct ControlReport {
+    tick_us_p50: f64,
+    tick_us_p99: f64,
+    tick_us_max: f64,
+    osc_us_p99: f64,
+    trajectory_us_p99: f64,
+    kinematics_us_p99: f64,
+    ik_ms_median: f64,
+    realtime_factor: f64,
+    ticks: usize,
+    keyframes: usize,
+    keyframes_reached: usize,
+    qp_fallbacks: u64,
+    limit_violations: u64,
 }
 
 #[derive(Debug, Args)]
@@ -72,6 +105,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
     match cmd {
         BenchCommand::Sim(args) => sim(args),
         BenchCommand::Render(args) => render(args),
+        BenchCommand::Control(args) => control(args),
     }
 }
 
@@ -138,6 +172,72 @@ fn render(args: RenderBenchArgs) -> anyhow::Result<()> {
         super::print_json(&report)
     } else {
         println!("{:.1} RGB-D frames/s at {}x{} ({:?} visuals, camera {})", report.frames_per_s, report.size, report.size, report.visuals, report.camera);
+        Ok(())
+    }
+}
+
+/// A deterministic tour around the home pose: translations of 10-20 cm and rotations up to
+/// 0.4 rad, returning home at the end.
+fn tour(home: &nalgebra::Isometry3<f64>, n: usize) -> Vec<flowram::control::runner::Keyframe> {
+    use nalgebra::{Translation3, UnitQuaternion, Vector3};
+    let offsets = [
+        (Vector3::new(0.12, 0.1, -0.05), Vector3::new(0.0, 0.0, 0.3)),
+        (Vector3::new(0.05, -0.15, -0.1), Vector3::new(0.2, 0.0, -0.2)),
+        (Vector3::new(-0.1, 0.05, 0.1), Vector3::new(0.0, -0.25, 0.0)),
+        (Vector3::new(0.15, 0.0, -0.12), Vector3::new(-0.2, 0.1, 0.4)),
+        (Vector3::new(0.0, 0.18, 0.05), Vector3::new(0.1, 0.2, -0.3)),
+        (Vector3::new(0.08, -0.08, 0.12), Vector3::new(0.0, 0.0, 0.0)),
+    ];
+    (0..n)
+        .map(|i| {
+            let (d, r) = if i + 1 == n { (Vector3::zeros(), Vector3::zeros()) } else { offsets[i % offsets.len()] };
+            let pose = Translation3::from(d) * home * UnitQuaternion::from_scaled_axis(r);
+            flowram::control::runner::Keyframe::at(&pose, true)
+        })
+        .collect()
+}
+
+fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(args.keyframes > 0, "--keyframes must be at least 1");
+    let config = super::stack::load_config(args.config.as_deref())?;
+    let (mut world, mut runner) = super::stack::simulated_stack(&args.scene, config)?;
+    let keyframes = tour(&world.arm_state().tcp_in_base, args.keyframes);
+    runner.enable_timing(args.keyframes * 10_000);
+    let start = Instant::now();
+    let report = runner.run(&mut world, &keyframes)?;
+    let wall = start.elapsed().as_secs_f64();
+    let timings = runner.timings().unwrap_or_default();
+    anyhow::ensure!(!timings.is_empty(), "no control ticks ran");
+    let micros = |f: fn(&flowram::control::controller::TickTiming) -> std::time::Duration| {
+        let mut v: Vec<f64> = timings.iter().map(|t| f(t).as_secs_f64() * 1e6).collect();
+        v.sort_by(f64::total_cmp);
+        v
+    };
+    let pct = |v: &[f64], p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+    let total = micros(|t| t.total);
+    let ik: Vec<f64> = report.keyframes.iter().map(|k| k.ik_ms).collect();
+    let out = ControlReport {
+        tick_us_p50: pct(&total, 0.5),
+        tick_us_p99: pct(&total, 0.99),
+        tick_us_max: *total.last().unwrap_or(&0.0),
+        osc_us_p99: pct(&micros(|t| t.osc), 0.99),
+        trajectory_us_p99: pct(&micros(|t| t.trajectory), 0.99),
+        kinematics_us_p99: pct(&micros(|t| t.kinematics), 0.99),
+        ik_ms_median: median(&ik),
+        realtime_factor: report.sim_time_s / wall,
+        ticks: timings.len(),
+        keyframes: report.keyframes.len(),
+        keyframes_reached: report.keyframes.iter().filter(|k| k.reached).count(),
+        qp_fallbacks: report.qp_fallbacks,
+        limit_violations: report.limit_violations,
+    };
+    if args.json {
+        super::print_json(&out)
+    } else {
+        println!(
+            "tick: p50 {:.1} us, p99 {:.1} us, max {:.1} us (OSC p99 {:.1}, trajectory p99 {:.2}, kinematics p99 {:.1}); IK median {:.2} ms; {:.1}x real time (sim + control); {}/{} keyframes reached, {} QP fallbacks, {} limit violations",
+            out.tick_us_p50, out.tick_us_p99, out.tick_us_max, out.osc_us_p99, out.trajectory_us_p99, out.kinematics_us_p99, out.ik_ms_median, out.realtime_factor, out.keyframes_reached, out.keyframes, out.qp_fallbacks, out.limit_violations
+        );
         Ok(())
     }
 }

@@ -130,9 +130,11 @@ impl std::fmt::Debug for Osc {
 
 impl Osc {
     pub fn new(config: OscConfig, limits: JointLimits, friction: JointFriction, dt: f64) -> Result<Self, OscSetupError> {
-        // Dense patterns: P's upper triangle (105 entries), A fully dense (196 entries).
-        let mut p = CscMatrix::from_column_iter_dense(NX, NX, std::iter::repeat_n(0.0, NX * NX)).into_upper_tri();
-        let mut a = CscMatrix::from_column_iter_dense(M, NX, std::iter::repeat_n(0.0, M * NX));
+        // Fixed sparsity patterns, built explicitly so that no entry is ever dropped:
+        // P = [H 0; 0 w_s I] (H's dense upper triangle, 28 + 7 entries),
+        // A = [M 0; I I] (M dense, identities: 56 + 7 entries).
+        let mut p = p_pattern();
+        let mut a = a_pattern();
         write_upper(p.data.to_mut(), &JointMatrix::identity(), config.slack_weight);
         write_constraints(a.data.to_mut(), &JointMatrix::identity());
         let lin = [0.0; NX];
@@ -346,30 +348,59 @@ impl Osc {
     }
 }
 
-/// P = [H 0; 0 w_s I]: upper triangle in CSC order (column j holds rows 0..=j).
+/// P's pattern: column j < 7 holds rows 0..=j (H), column j >= 7 holds row j (slack).
+fn p_pattern() -> CscMatrix<'static> {
+    let (mut indptr, mut indices) = (vec![0], Vec::new());
+    for j in 0..NX {
+        if j < N { indices.extend(0..=j) } else { indices.push(j) }
+        indptr.push(indices.len());
+    }
+    let nnz = indices.len();
+    CscMatrix { nrows: NX, ncols: NX, indptr: indptr.into(), indices: indices.into(), data: vec![0.0; nnz].into() }
+}
+
+/// A's pattern: column j < 7 holds rows 0..7 (M) and row 7 + j; column j >= 7 holds row j.
+fn a_pattern() -> CscMatrix<'static> {
+    let (mut indptr, mut indices) = (vec![0], Vec::new());
+    for j in 0..NX {
+        if j < N {
+            indices.extend(0..N);
+            indices.push(N + j);
+        } else {
+            indices.push(j);
+        }
+        indptr.push(indices.len());
+    }
+    let nnz = indices.len();
+    CscMatrix { nrows: M, ncols: NX, indptr: indptr.into(), indices: indices.into(), data: vec![0.0; nnz].into() }
+}
+
+/// Values of P in `p_pattern` order.
 fn write_upper(data: &mut [f64], h: &JointMatrix, slack_weight: f64) {
     let mut k = 0;
-    for j in 0..NX {
+    for j in 0..N {
         for i in 0..=j {
-            data[k] = match (i < N, j < N) {
-                (true, true) => 0.5 * (h[(i, j)] + h[(j, i)]),
-                (false, false) if i == j => slack_weight,
-                _ => 0.0,
-            };
+            data[k] = 0.5 * (h[(i, j)] + h[(j, i)]);
             k += 1;
         }
     }
+    for v in &mut data[k..] {
+        *v = slack_weight;
+    }
 }
 
-/// A = [M 0; I I] column-major, every entry stored (explicit zeros keep the pattern fixed).
+/// Values of A in `a_pattern` order.
 fn write_constraints(data: &mut [f64], mass: &JointMatrix) {
-    for j in 0..NX {
-        for i in 0..M {
-            data[j * M + i] = match (i < N, j < N) {
-                (true, true) => mass[(i, j)],
-                (true, false) => 0.0,
-                (false, _) => f64::from(u8::from(i - N == j % N)),
-            };
+    let mut k = 0;
+    for j in 0..N {
+        for i in 0..N {
+            data[k] = mass[(i, j)];
+            k += 1;
         }
+        data[k] = 1.0;
+        k += 1;
+    }
+    for v in &mut data[k..] {
+        *v = 1.0;
     }
 }

@@ -63,4 +63,92 @@ fn benchmarks_print_their_figures_as_json() {
     assert_eq!(render["size"].as_u64(), Some(32));
     assert_eq!(render["cameras"].as_u64(), Some(1));
     assert!(render["frames_per_s"].as_f64().unwrap() > 0.0);
+
+    let out = common::flowram().args(["bench", "control", "--keyframes", "2", "--json"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let control: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in ["tick_us_p50", "tick_us_p99", "tick_us_max", "osc_us_p99", "trajectory_us_p99", "kinematics_us_p99", "ik_ms_median", "realtime_factor"] {
+        assert!(control[key].as_f64().is_some_and(|v| v > 0.0), "{key} in {control}");
+    }
+    assert_eq!(control["keyframes_reached"], 2);
+}
+
+#[test]
+fn track_reports_keyframes_and_logs_every_tick() {
+    let dir = tempfile::tempdir().unwrap();
+    let keyframes = dir.path().join("keyframes.json");
+    // Home TCP is (0.3069, 0, 0.4869) pointing down; move 10 cm, then an unreachable pose.
+    std::fs::write(
+        &keyframes,
+        r#"{"keyframes":[
+            {"position":[0.40,0.05,0.45],"quat_wxyz":[0.0,1.0,0.0,0.0],"gripper_open":true},
+            {"position":[2.0,0.0,0.5],"quat_wxyz":[0.0,1.0,0.0,0.0],"gripper_open":true}]}"#,
+    )
+    .unwrap();
+    let log = dir.path().join("run.csv");
+    let out = common::flowram().args(["track", "--json", "--keyframes"]).arg(&keyframes).arg("--log").arg(&log).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let k = report["keyframes"].as_array().unwrap();
+    assert_eq!(k.len(), 2);
+    assert_eq!(k[0]["reached"], true);
+    assert!(k[0]["pos_err_mm"].as_f64().unwrap() <= 1.0 && k[0]["rot_err_deg"].as_f64().unwrap() <= 0.5);
+    assert!(k[0]["time_s"].as_f64().unwrap() > 0.1);
+    assert!(k[0]["error"].is_null());
+    assert_eq!(k[1]["reached"], false);
+    assert!(k[1]["error"].as_str().unwrap().contains("reaches at most"));
+    assert_eq!(report["limit_violations"], 0);
+    assert!(report["max_torque_ratio"].as_f64().unwrap() <= 1.0);
+    assert!(report["max_torque_rate_ratio"].as_f64().unwrap() <= 1.0 + 1e-9);
+
+    let csv = std::fs::read_to_string(&log).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header.len(), 1 + 7 * 3 + 7 + 7 + 7);
+    assert_eq!(&header[..2], &["t", "q1"]);
+    let rows: Vec<Vec<f64>> = lines.map(|l| l.split(',').map(|v| v.parse().unwrap()).collect()).collect();
+    assert!(rows.len() > 100 && rows.iter().all(|r| r.len() == header.len()));
+    assert!(rows.windows(2).all(|w| w[1][0] > w[0][0]), "time increases");
+}
+
+#[test]
+fn bad_keyframe_files_get_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let run = |content: Option<&str>| {
+        let path = dir.path().join("k.json");
+        match content {
+            Some(c) => std::fs::write(&path, c).unwrap(),
+            None => {
+                let _ = std::fs::remove_file(&path);
+            }
+        }
+        let out = common::flowram().args(["track", "--keyframes"]).arg(&path).output().unwrap();
+        assert_eq!(out.status.code(), Some(1));
+        let err = String::from_utf8_lossy(&out.stderr).into_owned();
+        assert!(!err.contains("panicked"), "{err}");
+        err
+    };
+    assert!(run(None).contains("cannot read the keyframes file"));
+    let err = run(Some("{\"keyframes\": [ {\"position\": [0.4, 0.0]} ]}"));
+    assert!(err.contains("quat_wxyz") && err.contains("expected"), "{err}");
+    let err = run(Some("{\"keyframes\": [{\"position\":[0.4,0,0.4],\"quat_wxyz\":[0,1,0,0],\"gripper_open\":true,\"speed\":2}]}"));
+    assert!(err.contains("speed"), "{err}");
+    assert!(run(Some("{\"keyframes\": []}")).contains("no keyframes"));
+    let out = common::flowram().args(["tune", "--step", "0.1,0"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(2), "clap usage error");
+    assert!(String::from_utf8_lossy(&out.stderr).contains("dx,dy,dz"));
+}
+
+#[test]
+fn tune_measures_a_step_and_plots_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let plot = dir.path().join("step.png");
+    let out = common::flowram().args(["tune", "--step", "0.05,0,0", "--duration", "1.0", "--json", "--plot"]).arg(&plot).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in ["rise_time_s", "overshoot_pct", "settling_time_s", "steady_state_error_mm", "peak_torque_ratio"] {
+        assert!(r[key].as_f64().is_some(), "{key} in {r}");
+    }
+    let (info, _) = decode_png(&plot);
+    assert_eq!((info.width, info.height), (1200, 800));
 }

@@ -10,9 +10,9 @@ use serde::Serialize;
 
 #[derive(Debug, Args)]
 pub struct TuneArgs {
-    /// Controller profile (TOML).
-    #[arg(long, default_value = "controllers/osc.toml")]
-    config: PathBuf,
+    /// Controller profile (TOML); default controllers/osc.toml.
+    #[arg(long)]
+    config: Option<PathBuf>,
     /// The step from the home pose: dx,dy,dz[,rx,ry,rz] in metres and radians (base frame).
     #[arg(long, allow_hyphen_values = true)]
     step: Step,
@@ -33,7 +33,7 @@ pub struct TuneArgs {
 
 #[derive(Serialize)]
 struct TuneReport<'a> {
-    config: &'a Path,
+    config: &'a str,
     step: [f64; 6],
     smooth: bool,
     #[serde(flatten)]
@@ -42,7 +42,8 @@ struct TuneReport<'a> {
 
 pub fn run(args: TuneArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.duration > 0.0 && args.duration <= 60.0, "--duration must be in (0, 60] seconds");
-    let config = super::stack::load_config(Some(&args.config))?;
+    let config = super::stack::load_config(args.config.as_deref())?;
+    let config_name = args.config.as_deref().map_or_else(|| "controllers/osc.toml".to_string(), |p| p.display().to_string());
     let (mut world, mut runner) = super::stack::simulated_stack(&args.scene, config)?;
     let result = step_response(&mut world, &mut runner, &args.step, args.smooth, args.duration)?;
     if let Some(path) = &args.plot {
@@ -50,7 +51,7 @@ pub fn run(args: TuneArgs) -> anyhow::Result<()> {
     }
     let s = &args.step;
     let report = TuneReport {
-        config: &args.config,
+        config: &config_name,
         step: [s.translation.x, s.translation.y, s.translation.z, s.rotation.x, s.rotation.y, s.rotation.z],
         smooth: args.smooth,
         metrics: &result.metrics,

@@ -2,6 +2,7 @@
 //! MuJoCo-simulated Franka Panda. See README.md.
 pub mod config;
 pub mod control;
+pub mod data;
 pub mod deps;
 pub mod files;
 pub mod robot;

@@ -1,0 +1,1 @@
+//! Demonstration datasets on disk (one safetensors file per episode + a JSON index).

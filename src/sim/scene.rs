@@ -58,8 +58,9 @@ pub fn resolve_scene(name_or_path: &str) -> Result<PathBuf, SimError> {
     if path.is_file() { Ok(path) } else { Err(SimError::SceneNotFound { path }) }
 }
 
-/// Loads a scene file and attaches the Panda; returns the compiled model.
-pub fn compose(scene: &Path, deps: &Deps) -> Result<MjModel, SimError> {
+/// Loads a scene file, attaches the Panda and merges `extra` MJCF files (task objects) into
+/// its world; returns the compiled model.
+pub fn compose(scene: &Path, extra: &[PathBuf], deps: &Deps) -> Result<MjModel, SimError> {
     // Dependency checks first: a missing setup must say so, not fail later inside MuJoCo.
     let arm_path = deps.panda_arm_mjcf()?;
     let hand_path = deps.panda_hand_mjcf()?;
@@ -92,6 +93,14 @@ pub fn compose(scene: &Path, deps: &Deps) -> Result<MjModel, SimError> {
         name: MOUNT_SITE.into(),
     })?;
     site.attach_by_deep_copy(&mut arm, "", "").map_err(|e| edit_error(&arm_path, e))?;
+
+    for path in extra {
+        if !path.is_file() {
+            return Err(SimError::SceneNotFound { path: path.clone() });
+        }
+        let mut objects = load(path)?;
+        world.world_body_mut().add_frame().attach_by_deep_copy(&mut objects, "", "").map_err(|e| edit_error(path, e))?;
+    }
 
     world.compile().map_err(|e| SimError::Load { path: scene.to_path_buf(), message: e.to_string() })
 }

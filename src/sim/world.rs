@@ -2,7 +2,6 @@
 //! flowram's scenes), reads the arm state, applies joint torques and the gripper command, and
 //! reads and sets object poses. No other module calls MuJoCo directly.
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
@@ -60,7 +59,7 @@ struct ArmIndex {
 /// A loaded scene with the Panda in it.
 pub struct World {
     scene_path: PathBuf,
-    data: MjData<Arc<MjModel>>,
+    data: MjData<Box<MjModel>>,
     arm: ArmIndex,
 }
 
@@ -74,8 +73,13 @@ impl World {
     /// Loads a scene file (see `models/scene.xml`) with the Panda from `deps`, and resets it to
     /// the `home` posture.
     pub fn load(scene_path: &Path, deps: &Deps) -> Result<Self, SimError> {
+        Self::load_with(scene_path, &[], deps)
+    }
+
+    /// Loads a scene with extra MJCF files merged into its world (task objects, `models/tasks/`).
+    pub fn load_with(scene_path: &Path, extra: &[PathBuf], deps: &Deps) -> Result<Self, SimError> {
         super::logging::install();
-        let model = Arc::new(scene::compose(scene_path, deps)?);
+        let model = Box::new(scene::compose(scene_path, extra, deps)?);
         let arm = ArmIndex::resolve(&model, scene_path)?;
         let data = MjData::new(model);
         let mut world = Self { scene_path: scene_path.to_path_buf(), data, arm };
@@ -97,11 +101,11 @@ impl World {
         self.data.model()
     }
 
-    pub(crate) fn data_mut(&mut self) -> &mut MjData<Arc<MjModel>> {
+    pub(crate) fn data_mut(&mut self) -> &mut MjData<Box<MjModel>> {
         &mut self.data
     }
 
-    pub(crate) fn data(&self) -> &MjData<Arc<MjModel>> {
+    pub(crate) fn data(&self) -> &MjData<Box<MjModel>> {
         &self.data
     }
 
@@ -124,16 +128,16 @@ impl World {
     /// `<key name=..>` if the scene has one, else a `<numeric name="q_NAME">` of 7 joint angles
     /// (the scene's `q_home`, `q_ready`). The gripper starts open.
     pub fn reset_to(&mut self, name: &str) -> Result<(), SimError> {
-        let model = self.data.model().clone();
+        let model = self.data.model();
         if let Some(key) = model.name_to_id(MjtObjBase::mjOBJ_KEY, name) {
             self.data.reset_keyframe(key).map_err(|e| SimError::InvalidInput { what: "keyframe", detail: e.to_string() })?;
             self.data.forward();
             return Ok(());
         }
-        let q = named_posture(&model, name).ok_or_else(|| SimError::UnknownName {
+        let q = named_posture(model, name).ok_or_else(|| SimError::UnknownName {
             kind: "posture",
             name: name.into(),
-            valid: posture_names(&model).join(", "),
+            valid: posture_names(model).join(", "),
         })?;
         self.reset_to_configuration(&q)
     }
@@ -353,6 +357,42 @@ impl World {
             bias: JointVector::from_fn(|i, _| bias[self.arm.dof[i]]),
             gravity_compensation: JointVector::from_fn(|i, _| gravcomp[self.arm.dof[i]]),
         }
+    }
+
+    /// Colour of a geom (RGBA in [0, 1]), e.g. for a task variation's object colours.
+    pub fn set_geom_rgba(&mut self, name: &str, rgba: [f32; 4]) -> Result<(), SimError> {
+        let id = self.id_of(MjtObjBase::mjOBJ_GEOM, "geom", name, self.model().ffi().ngeom as usize)?;
+        // SAFETY: only a colour changes; no size, index or address of the model does.
+        unsafe { self.data.model_mut() }.geom_rgba_mut()[id] = rgba;
+        Ok(())
+    }
+
+    /// Moves a fixed (joint-less) body relative to its parent, e.g. to place a task's fixture.
+    pub fn set_fixed_body_pose(&mut self, name: &str, pose: &Isometry3<f64>) -> Result<(), SimError> {
+        let id = self.body_id(name)?;
+        let t = pose.translation.vector;
+        let q = pose.rotation.quaternion();
+        // SAFETY: only the body's placement changes; no size, index or address of the model does.
+        let model = unsafe { self.data.model_mut() };
+        model.body_pos_mut()[id] = [t.x, t.y, t.z];
+        model.body_quat_mut()[id] = [q.w, q.i, q.j, q.k];
+        self.data.forward();
+        Ok(())
+    }
+
+    /// Position (m or rad) of a named joint with one coordinate (slide or hinge).
+    pub fn joint_position(&self, name: &str) -> Result<f64, SimError> {
+        let id = self.id_of(MjtObjBase::mjOBJ_JOINT, "joint", name, self.model().ffi().njnt as usize)?;
+        Ok(self.data.qpos()[self.model().jnt_qposadr()[id] as usize])
+    }
+
+    fn id_of(&self, kind: MjtObjBase, label: &'static str, name: &str, count: usize) -> Result<usize, SimError> {
+        let model = self.data.model();
+        model.name_to_id(kind, name).ok_or_else(|| SimError::UnknownName {
+            kind: label,
+            name: name.into(),
+            valid: names(model, kind, count).join(", "),
+        })
     }
 
     /// Recomputes positions, velocities and forces from the current state (after editing it).

@@ -30,7 +30,7 @@ fn episode(seed: u64, k: usize) -> Episode {
         instruction: format!("open the drawer nr. {seed} — «ünïcode»"),
         seed: rng.random::<u64>(),
         cameras: cameras(),
-        success: seed % 2 == 0,
+        success: seed.is_multiple_of(2),
         height: H,
         width: W,
         rgb: (0..k * c * H * W * 3).map(|_| rng.random::<u8>()).collect(),

@@ -123,7 +123,7 @@ impl Episode {
     /// Checks that every tensor length agrees with K, C, H and W.
     pub fn validate(&self) -> Result<(), DataError> {
         let bad = |m: String| Err(DataError::InvalidEpisode(m));
-        if self.proprio.len() % POSE_LEN != 0 || self.proprio.is_empty() {
+        if !self.proprio.len().is_multiple_of(POSE_LEN) || self.proprio.is_empty() {
             return bad(format!("`proprio` has {} values, expected K x {POSE_LEN} with K >= 1", self.proprio.len()));
         }
         if self.cameras.is_empty() || self.height == 0 || self.width == 0 {
@@ -358,22 +358,28 @@ impl Dataset {
     pub fn create_or_open(dir: &Path, task: &str, cameras: &[String], image_size: [usize; 2]) -> Result<DatasetWriter, DataError> {
         if dir.join(INDEX_FILE).exists() {
             let index = read_index(dir)?;
-            let mismatch = |field, existing: String, new: String| Err(DataError::Mismatch { dir: dir.to_path_buf(), field, existing, new });
-            if index.task != task {
-                return mismatch("task", format!("{:?}", index.task), format!("{task:?}"));
-            }
-            if index.cameras != cameras {
-                return mismatch("camera list", format!("{:?}", index.cameras), format!("{cameras:?}"));
-            }
-            if index.image_size != image_size {
-                return mismatch("image size [H, W]", format!("{:?}", index.image_size), format!("{image_size:?}"));
-            }
+            check_same(dir, &index, task, cameras, image_size)?;
             return Ok(DatasetWriter { dir: dir.to_path_buf(), index });
         }
         let index = DatasetIndex { format: DATASET_FORMAT.into(), task: task.into(), cameras: cameras.to_vec(), image_size, episodes: Vec::new() };
         write_index(dir, &index)?;
         Ok(DatasetWriter { dir: dir.to_path_buf(), index })
     }
+}
+
+/// Refuses to mix a different task, camera list or image size ([H, W]) into the dataset in `dir`.
+fn check_same(dir: &Path, index: &DatasetIndex, task: &str, cameras: &[String], image_size: [usize; 2]) -> Result<(), DataError> {
+    let mismatch = |field, existing: String, new: String| Err(DataError::Mismatch { dir: dir.to_path_buf(), field, existing, new });
+    if index.task != task {
+        return mismatch("task", format!("{:?}", index.task), format!("{task:?}"));
+    }
+    if index.cameras != cameras {
+        return mismatch("camera list", format!("{:?}", index.cameras), format!("{cameras:?}"));
+    }
+    if index.image_size != image_size {
+        return mismatch("image size [H, W]", format!("{:?}", index.image_size), format!("{image_size:?}"));
+    }
+    Ok(())
 }
 
 impl DatasetWriter {
@@ -385,16 +391,7 @@ impl DatasetWriter {
     /// Writes `episode` as the next `episode_NNNNN.safetensors`, then rewrites the index.
     pub fn append(&mut self, episode: &Episode) -> Result<PathBuf, DataError> {
         let index = &self.index;
-        let mismatch = |field, existing: String, new: String| DataError::Mismatch { dir: self.dir.clone(), field, existing, new };
-        if episode.task != index.task {
-            return Err(mismatch("task", format!("{:?}", index.task), format!("{:?}", episode.task)));
-        }
-        if episode.cameras != index.cameras {
-            return Err(mismatch("camera list", format!("{:?}", index.cameras), format!("{:?}", episode.cameras)));
-        }
-        if [episode.height, episode.width] != index.image_size {
-            return Err(mismatch("image size [H, W]", format!("{:?}", index.image_size), format!("{:?}", [episode.height, episode.width])));
-        }
+        check_same(&self.dir, index, &episode.task, &episode.cameras, [episode.height, episode.width])?;
         let mut number = index.episodes.len();
         let name = |n: usize| format!("episode_{n:05}.safetensors");
         while index.episodes.iter().any(|e| e.file == name(number)) {

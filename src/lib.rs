@@ -7,3 +7,4 @@ pub mod deps;
 pub mod files;
 pub mod robot;
 pub mod sim;
+pub mod tasks;

@@ -1,0 +1,159 @@
+//! Running a task's episode closed loop: reset (seeded), the expert's keyframes executed one
+//! by one through IK -> ruckig -> OSC at 1 kHz on the simulated Panda (no teleporting), the
+//! task observing after each keyframe, success checked at the end. Observations (RGB-D of the
+//! chosen cameras, proprioception) are taken at each keyframe for datasets.
+use nalgebra::Isometry3;
+use rand::SeedableRng;
+use rand::rngs::StdRng;
+
+use super::{Episode, Task, TaskError};
+use crate::control::backend::RobotBackend;
+use crate::control::osc_config::OscConfig;
+use crate::control::runner::{Keyframe, Runner};
+use crate::robot::{JointLimits, JointVector};
+use crate::sim::{CameraRig, RgbdFrame, World};
+
+/// Who acts in an episode.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Actor {
+    /// The task's scripted expert.
+    Expert,
+    /// Nobody: the arm holds still for the given seconds (checks that success is not trivial).
+    Idle { seconds: u32 },
+}
+
+/// The state at one keyframe: images (if cameras were given) and the TCP pose + gripper.
+#[derive(Debug, Clone)]
+pub struct KeyframeObservation {
+    pub frames: Vec<RgbdFrame>,
+    /// TCP position (world, m), quaternion w, x, y, z, gripper open (1/0).
+    pub proprio: [f32; 8],
+}
+
+/// How an episode went.
+#[derive(Debug, Clone)]
+pub struct EpisodeResult {
+    pub episode: Episode,
+    pub success: bool,
+    /// Keyframes executed, and how many the controller reached to tolerance.
+    pub keyframes: usize,
+    pub reached: usize,
+    pub sim_seconds: f64,
+    /// One observation before each keyframe (k = 0 is the initial state).
+    pub observations: Vec<KeyframeObservation>,
+    /// The keyframe the expert went to from each observation (world frame), as `proprio`.
+    pub actions: Vec<[f32; 8]>,
+    /// Where the TCP actually was after each keyframe (world frame), as `proprio`.
+    pub reached_poses: Vec<[f32; 8]>,
+    /// Why keyframes were not reached (keyframe index, reason).
+    pub problems: Vec<(usize, String)>,
+}
+
+/// Settling time after reset, before the first keyframe (objects come to rest).
+const SETTLE_S: f64 = 0.3;
+
+/// Resets the task (seeded) and runs one episode.
+pub fn run_episode(
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+    actor: Actor,
+    mut cameras: Option<&mut CameraRig>,
+) -> Result<EpisodeResult, TaskError> {
+    if variation >= task.variation_count() {
+        return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 });
+    }
+    world.reset_to("home")?;
+    let mut rng = StdRng::seed_from_u64(seed);
+    let mut state = task.reset(world, variation, &mut rng)?;
+    let limits = JointLimits::panda().map_err(|e| TaskError::Config(e.to_string()))?;
+    let config = OscConfig::default_profile().map_err(|e| TaskError::Config(e.to_string()))?;
+    let description = world.arm_description()?;
+    let mut runner = Runner::build(&description, limits, config, &world.read_state(), world.timestep()).map_err(|e| TaskError::Config(e.to_string()))?;
+    let t0 = world.time();
+    // Let the objects settle while the controller holds the arm.
+    hold(world, &mut runner, SETTLE_S)?;
+    let keyframes = match actor {
+        Actor::Expert => task.expert(world, &state)?,
+        Actor::Idle { .. } => Vec::new(),
+    };
+    let base = world.base_pose();
+    let mut result = EpisodeResult {
+        episode: Episode { task: task.name(), variation, instruction: task.instruction(variation), seed, state: Default::default() },
+        success: false,
+        keyframes: keyframes.len(),
+        reached: 0,
+        sim_seconds: 0.0,
+        observations: Vec::with_capacity(keyframes.len()),
+        actions: Vec::with_capacity(keyframes.len()),
+        reached_poses: Vec::with_capacity(keyframes.len()),
+        problems: Vec::new(),
+    };
+    let mut gripper_open = true;
+    for (k, keyframe) in keyframes.iter().enumerate() {
+        result.observations.push(observe(world, cameras.as_deref_mut(), gripper_open)?);
+        result.actions.push(proprio_of(keyframe));
+        let report = runner.run(world, &[in_base(&base, keyframe)]).map_err(|e| TaskError::Config(e.to_string()))?;
+        for r in &report.keyframes {
+            if r.reached {
+                result.reached += 1;
+            } else {
+                result.problems.push((k, r.error.clone().unwrap_or_default()));
+            }
+        }
+        gripper_open = keyframe.gripper_open;
+        task.observe(world, &mut state);
+        result.reached_poses.push(tcp_proprio(world, gripper_open));
+    }
+    if let Actor::Idle { seconds } = actor {
+        hold(world, &mut runner, f64::from(seconds))?;
+        task.observe(world, &mut state);
+    }
+    result.success = task.success(world, &state);
+    result.sim_seconds = world.time() - t0;
+    result.episode.state = state;
+    Ok(result)
+}
+
+/// Holds the arm where it is for `seconds`.
+fn hold(world: &mut World, runner: &mut Runner, seconds: f64) -> Result<(), TaskError> {
+    let q: JointVector = world.read_state().q;
+    runner.controller.set_goal(&q);
+    let end = world.time() + seconds;
+    world
+        .control(|state| {
+            let command = runner.controller.tick(state);
+            if state.time >= end {
+                crate::control::backend::Cycle::Finish(command)
+            } else {
+                crate::control::backend::Cycle::Continue(command)
+            }
+        })
+        .map_err(|e| TaskError::Config(e.to_string()))?;
+    Ok(())
+}
+
+fn in_base(base: &Isometry3<f64>, keyframe: &Keyframe) -> Keyframe {
+    let pose = crate::control::ik::target_pose(keyframe.position, keyframe.quat_wxyz).unwrap_or_else(|_| Isometry3::identity());
+    Keyframe::at(&(base.inverse() * pose), keyframe.gripper_open)
+}
+
+fn proprio_of(k: &Keyframe) -> [f32; 8] {
+    let (p, q) = (k.position, k.quat_wxyz);
+    [p[0], p[1], p[2], q[0], q[1], q[2], q[3], if k.gripper_open { 1.0 } else { 0.0 }].map(|v| v as f32)
+}
+
+fn tcp_proprio(world: &World, gripper_open: bool) -> [f32; 8] {
+    proprio_of(&Keyframe::at(&world.tcp_pose(), gripper_open))
+}
+
+fn observe(world: &mut World, cameras: Option<&mut CameraRig>, gripper_open: bool) -> Result<KeyframeObservation, TaskError> {
+    let mut frames = Vec::new();
+    if let Some(rig) = cameras {
+        for i in 0..rig.camera_names().count() {
+            frames.push(rig.render(world, i)?);
+        }
+    }
+    Ok(KeyframeObservation { frames, proprio: tcp_proprio(world, gripper_open) })
+}

@@ -1,0 +1,88 @@
+//! RLBench-style tasks, one file per task: the objects each adds to the base scene
+//! (`models/tasks/<task>.xml`), its variations and their instructions (the templates of the
+//! paper's Table A), a seeded reset that randomises object placement within documented ranges,
+//! a success check on the simulator state, and an expert that computes keyframes (TCP pose +
+//! gripper) from the object poses, like RLBench's waypoints. `episode.rs` runs them closed
+//! loop through the control stack.
+pub mod colors;
+pub mod episode;
+pub mod grasp;
+pub mod open_drawer;
+
+use std::path::PathBuf;
+
+use rand::rngs::StdRng;
+
+use crate::control::runner::Keyframe;
+use crate::sim::{SimError, World};
+
+/// A task's per-episode state: what reset chose, and what happened so far.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Episode {
+    pub task: &'static str,
+    pub variation: usize,
+    pub instruction: String,
+    pub seed: u64,
+    /// Task-specific choices of the reset (object names, targets), and progress.
+    pub state: TaskState,
+}
+
+/// What a task remembers between keyframes.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct TaskState {
+    /// Named objects chosen at reset, in the order that matters (e.g. buttons to push).
+    pub targets: Vec<String>,
+    /// Events seen so far (e.g. buttons pressed, in order).
+    pub events: Vec<String>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum TaskError {
+    #[error("unknown task `{name}`; tasks: {valid}")]
+    UnknownTask { name: String, valid: String },
+    #[error("task {task} has variations 0 to {max}; {variation} is out of range")]
+    BadVariation { task: &'static str, variation: usize, max: usize },
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    #[error("{0}")]
+    Config(String),
+}
+
+/// One RLBench-style task.
+pub trait Task: Send + Sync {
+    fn name(&self) -> &'static str;
+    fn variation_count(&self) -> usize;
+    /// The language instruction of a variation.
+    fn instruction(&self, variation: usize) -> String;
+    /// Places the objects (randomised with `rng`) in a world freshly reset to `home`.
+    fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError>;
+    /// Called after each keyframe: records events (presses, grasps) into the state.
+    fn observe(&self, _world: &World, _state: &mut TaskState) {}
+    /// Whether the episode has succeeded, from the simulator state (and recorded events).
+    fn success(&self, world: &World, state: &TaskState) -> bool;
+    /// The expert's keyframes in the world frame, from the objects as they are now.
+    fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError>;
+
+    /// The MJCF file with the task's objects.
+    fn model_file(&self) -> PathBuf {
+        crate::deps::models_dir().join("tasks").join(format!("{}.xml", self.name()))
+    }
+}
+
+/// Every task, in Table A's order.
+pub fn all() -> Vec<Box<dyn Task>> {
+    vec![Box::new(open_drawer::OpenDrawer)]
+}
+
+pub fn by_name(name: &str) -> Result<Box<dyn Task>, TaskError> {
+    all().into_iter().find(|t| t.name() == name).ok_or_else(|| TaskError::UnknownTask {
+        name: name.into(),
+        valid: all().iter().map(|t| t.name()).collect::<Vec<_>>().join(", "),
+    })
+}
+
+/// The world of a task: the default scene with the task's objects.
+pub fn load_world(task: &dyn Task) -> Result<World, TaskError> {
+    let scene = crate::sim::scene::resolve_scene("default")?;
+    Ok(World::load_with(&scene, &[task.model_file()], &crate::deps::Deps::locate())?)
+}

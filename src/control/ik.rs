@@ -125,6 +125,8 @@ impl InverseKinematics {
         }
         let mut rng = rand::rngs::StdRng::seed_from_u64(restart_seed(target));
         let mut best: Option<IkSolution> = None;
+        let mut chosen: Option<(f64, IkSolution)> = None;
+        let mut found = 0;
         let mut total_iterations = 0;
         for attempt in 0..c.restarts + 2 {
             let start = match attempt {
@@ -139,18 +141,47 @@ impl InverseKinematics {
             s.iterations = total_iterations;
             s.restarts = attempt;
             if s.position_error <= c.position_tolerance && s.orientation_error <= c.orientation_tolerance {
-                return Ok(s);
+                // A solution near the seed and away from the limits is taken at once; otherwise
+                // a few solutions compete on that same cost (arm branches differ a lot).
+                let cost = self.branch_cost(&s.q, seed);
+                if attempt == 0 && (s.q - seed).abs().max() < 0.5 && cost < 1.0 {
+                    return Ok(s);
+                }
+                found += 1;
+                if chosen.as_ref().is_none_or(|(best_cost, _)| cost < *best_cost) {
+                    chosen = Some((cost, s));
+                }
+                if found >= CANDIDATES {
+                    break;
+                }
+                continue;
             }
             let score = |x: &IkSolution| x.position_error + 0.1 * x.orientation_error;
             if best.as_ref().is_none_or(|b| score(&s) < score(b)) {
                 best = Some(s);
             }
         }
+        if let Some((_, s)) = chosen {
+            return Ok(s);
+        }
         let b = best.expect("at least one attempt ran");
         Err(IkError::Unreachable {
             position_error_mm: b.position_error * 1e3,
             orientation_error_deg: b.orientation_error.to_degrees(),
         })
+    }
+
+    /// How undesirable a solution is: joint travel from the seed, plus a penalty for joints
+    /// within 0.3 rad of a limit.
+    fn branch_cost(&self, q: &JointVector, seed: &JointVector) -> f64 {
+        let travel = (q - seed).norm_squared();
+        let near_limit: f64 = (0..7)
+            .map(|i| {
+                let d = (q[i] - self.limits.position_min[i]).min(self.limits.position_max[i] - q[i]);
+                10.0 * (0.3 - d).max(0.0).powi(2)
+            })
+            .sum();
+        travel + near_limit
     }
 
     /// One Levenberg-Marquardt descent from `q`: a step is kept only if it lowers the error
@@ -206,6 +237,9 @@ impl InverseKinematics {
         }
     }
 }
+
+/// Solutions compared when the seed's own is far or near a limit.
+const CANDIDATES: usize = 4;
 
 /// A deterministic seed per target, so a given pose always gets the same restarts.
 fn restart_seed(target: &Isometry3<f64>) -> u64 {

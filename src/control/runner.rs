@@ -9,9 +9,15 @@ use serde::{Deserialize, Serialize};
 use super::backend::{BackendError, Command, Cycle, RobotBackend, RobotState};
 use super::controller::ArmController;
 use super::gripper::{GraspState, Gripper};
-use super::ik::{InverseKinematics, target_pose};
+use super::ik::{IkError, InverseKinematics, target_pose};
 use super::pose_error::pose_error;
 use crate::robot::{JointLimits, JointVector};
+
+/// Straight-line motions get a joint goal every this many metres or radians.
+const WAYPOINT_SPACING: f64 = 0.03;
+const WAYPOINT_ANGLE: f64 = 0.1;
+/// Switch to the next waypoint when the joint reference is this close to the current one (rad).
+const WAYPOINT_SWITCH: f64 = 0.03;
 
 /// A keyframe: the TCP pose in the robot base frame (`panda_link0`, metres, quaternion
 /// [w, x, y, z]) and whether the gripper is open once the pose is reached.
@@ -228,19 +234,21 @@ impl Runner {
         for keyframe in keyframes {
             let t0 = backend.read_state().time;
             let ik_start = std::time::Instant::now();
-            let goal = target_pose(keyframe.position, keyframe.quat_wxyz)
-                .and_then(|target| self.ik.solve(self.controller.kinematics_mut(), &target, &seed).map(|s| (target, s.q)));
+            let from = self.controller.kinematics_mut().tcp(&seed).unwrap_or_else(|_| Isometry3::identity());
+            let goal = target_pose(keyframe.position, keyframe.quat_wxyz).and_then(|target| {
+                let goals = self.straight_line_goals(&from, &target, &seed)?;
+                Ok((target, goals))
+            });
             let ik_ms = ik_start.elapsed().as_secs_f64() * 1e3;
-            let (target, q_goal) = match goal {
+            let (target, goals) = match goal {
                 Ok(g) => g,
                 Err(e) => {
                     reports.push(KeyframeReport { reached: false, pos_err_mm: f64::NAN, rot_err_deg: f64::NAN, time_s: 0.0, error: Some(e.to_string()), gripper: None, ik_ms });
                     continue;
                 }
             };
-            seed = q_goal;
-            self.controller.set_goal(&q_goal);
-            let error = self.move_and_settle(backend, &target)?;
+            seed = *goals.last().unwrap_or(&seed);
+            let error = self.move_and_settle(backend, &target, &goals)?;
             let (ep, er) = (error.fixed_rows::<3>(0).norm(), error.fixed_rows::<3>(3).norm());
             let c = self.controller.osc().config();
             let reached = ep <= c.reached_position && er <= c.reached_orientation;
@@ -309,15 +317,52 @@ impl Runner {
 
     /// Tracks the trajectory to its end, then waits until the TCP is within tolerance of
     /// `target` and still, or the settle timeout passes. Returns the final pose error.
-    fn move_and_settle<B: RobotBackend>(&mut self, backend: &mut B, target: &Isometry3<f64>) -> Result<Vector6<f64>, BackendError> {
+    /// Joint goals along the straight line (and slerp) from `from` to `target`, one every
+    /// 3 cm / 0.1 rad, each solved by IK seeded with the previous one, so that the TCP moves
+    /// along a line near objects instead of along a joint-space curve. If a point of the line
+    /// has no IK solution the move goes straight to the target in joint space.
+    fn straight_line_goals(&mut self, from: &Isometry3<f64>, target: &Isometry3<f64>, seed: &JointVector) -> Result<Vec<JointVector>, IkError> {
+        let distance = (target.translation.vector - from.translation.vector).norm();
+        let angle = from.rotation.angle_to(&target.rotation);
+        let steps = ((distance / WAYPOINT_SPACING).max(angle / WAYPOINT_ANGLE).ceil() as usize).clamp(1, 100);
+        let mut goals = Vec::with_capacity(steps);
+        let mut q = *seed;
+        for i in 1..=steps {
+            let s = i as f64 / steps as f64;
+            let pose = Isometry3::from_parts(
+                nalgebra::Translation3::from(from.translation.vector.lerp(&target.translation.vector, s)),
+                from.rotation.slerp(&target.rotation, s),
+            );
+            match self.ik.solve(self.controller.kinematics_mut(), &pose, &q) {
+                Ok(solution) if i == 1 || (solution.q - q).abs().max() < 0.5 => {
+                    q = solution.q;
+                    goals.push(q);
+                }
+                _ => {
+                    let direct = self.ik.solve(self.controller.kinematics_mut(), target, seed)?;
+                    return Ok(vec![direct.q]);
+                }
+            }
+        }
+        Ok(goals)
+    }
+
+    fn move_and_settle<B: RobotBackend>(&mut self, backend: &mut B, target: &Isometry3<f64>, goals: &[JointVector]) -> Result<Vector6<f64>, BackendError> {
         let c = *self.controller.osc().config();
         let mut settle_start: Option<f64> = None;
         let mut within = 0u32;
         let mut error = Vector6::zeros();
+        let mut next = 0usize;
         backend.control(|state| {
+            // Feed the waypoints: the next one as soon as the reference nears the current one,
+            // so the motion flows through them.
+            if next < goals.len() && (next == 0 || (self.controller.reference().q - goals[next - 1]).norm() < WAYPOINT_SWITCH) {
+                self.controller.set_goal(&goals[next]);
+                next += 1;
+            }
             let command = self.tick(state);
             error = pose_error(target, self.controller.tcp());
-            if !self.controller.trajectory_finished() {
+            if next < goals.len() || !self.controller.trajectory_finished() {
                 return Cycle::Continue(command);
             }
             let since = *settle_start.get_or_insert(state.time);

@@ -145,8 +145,8 @@ impl Osc {
             .polishing(false)
             .adaptive_rho(true)
             .adaptive_rho_interval(Some(25))
-            .eps_abs(1e-6)
-            .eps_rel(1e-6)
+            .eps_abs(1e-5)
+            .eps_rel(1e-5)
             .max_iter(config.max_iterations)
             .check_termination(Some(10))
             .time_limit(Some(Duration::from_secs_f64(config.time_limit)));

@@ -171,6 +171,20 @@ impl InverseKinematics {
         })
     }
 
+    /// A solution that continues from `seed` (one descent, no restarts), for points along a
+    /// path: it fails rather than jump to another arm branch (no joint moves more than
+    /// `max_step` rad).
+    pub fn solve_near(&self, kin: &mut Kinematics, target: &Isometry3<f64>, seed: &JointVector, max_step: f64) -> Result<IkSolution, IkError> {
+        let c = &self.config;
+        let s = self.descend(kin, target, self.limits.clamp(seed, c.limit_margin))?;
+        let converged = s.position_error <= c.position_tolerance && s.orientation_error <= c.orientation_tolerance;
+        if converged && (s.q - seed).abs().max() <= max_step {
+            Ok(s)
+        } else {
+            Err(IkError::Unreachable { position_error_mm: s.position_error * 1e3, orientation_error_deg: s.orientation_error.to_degrees() })
+        }
+    }
+
     /// How undesirable a solution is: joint travel from the seed, plus a penalty for joints
     /// within 0.3 rad of a limit.
     fn branch_cost(&self, q: &JointVector, seed: &JointVector) -> f64 {

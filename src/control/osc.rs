@@ -226,7 +226,16 @@ impl Osc {
         }
         let velocity = jac * dq;
         let desired_velocity = reference.twist + correction;
-        let a_des = reference.acceleration + kd.component_mul(&(desired_velocity - velocity)) + ki.component_mul(&self.integral);
+        // The feedback's acceleration is bounded per part: in contact (a blocked TCP) the
+        // error would otherwise grow into forces that make the wrist give way.
+        let mut feedback = kd.component_mul(&(desired_velocity - velocity)) + ki.component_mul(&self.integral);
+        for (part, limit) in [(0usize, c.position.max_acceleration), (3usize, c.orientation.max_acceleration)] {
+            let n = feedback.fixed_rows::<3>(part).norm();
+            if n > limit {
+                feedback.fixed_rows_mut::<3>(part).scale_mut(limit / n);
+            }
+        }
+        let a_des = reference.acceleration + feedback;
         let b = a_des - dynamics.jdot_qdot;
 
         // Posture in the nullspace.

@@ -21,6 +21,8 @@ pub struct AxisGains {
     pub integral_limit: f64,
     /// Fastest the error is closed (m/s or rad/s), on top of the reference's own velocity.
     pub max_speed: f64,
+    /// Largest feedback acceleration (m/s^2 or rad/s^2): bounds the force in contact.
+    pub max_acceleration: f64,
 }
 
 impl AxisGains {
@@ -130,5 +132,6 @@ fn axis(f: &mut ConfigFile, section: &str, zone: Quantity, limit: Quantity, spee
         integral_zone: f.quantity(&format!("{section}.integral_zone"), zone, Sign::NonNegative)?,
         integral_limit: f.quantity(&format!("{section}.integral_limit"), limit, Sign::NonNegative)?,
         max_speed: f.quantity(&format!("{section}.max_speed"), speed, Sign::Positive)?,
+        max_acceleration: f.quantity(&format!("{section}.max_acceleration"), limit, Sign::Positive)?,
     })
 }

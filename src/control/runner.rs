@@ -333,12 +333,12 @@ impl Runner {
                 nalgebra::Translation3::from(from.translation.vector.lerp(&target.translation.vector, s)),
                 from.rotation.slerp(&target.rotation, s),
             );
-            match self.ik.solve(self.controller.kinematics_mut(), &pose, &q) {
-                Ok(solution) if i == 1 || (solution.q - q).abs().max() < 0.5 => {
+            match self.ik.solve_near(self.controller.kinematics_mut(), &pose, &q, 0.5) {
+                Ok(solution) => {
                     q = solution.q;
                     goals.push(q);
                 }
-                _ => {
+                Err(_) => {
                     let direct = self.ik.solve(self.controller.kinematics_mut(), target, seed)?;
                     return Ok(vec![direct.q]);
                 }

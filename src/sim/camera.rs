@@ -147,10 +147,8 @@ impl CameraRig {
 
     /// Renders camera `index` of the world's current state into `frame` (reusing its buffers).
     pub fn render_into(&mut self, world: &mut World, index: usize, frame: &mut RgbdFrame) -> Result<(), SimError> {
-        let (name, id) = &self.cameras[index];
-        self.renderer.set_camera(MjvCamera::new_fixed(*id));
-        self.renderer.sync_data(world.data_mut()).map_err(|e| SimError::Render(e.to_string()))?;
-        self.renderer.render().map_err(|e| SimError::Render(e.to_string()))?;
+        self.draw(world.data_mut(), index)?;
+        let name = &self.cameras[index].0;
         let rgb = self.renderer.rgb_flat().ok_or_else(|| SimError::Render("no RGB buffer".into()))?;
         let depth = self.renderer.depth_flat().ok_or_else(|| SimError::Render("no depth buffer".into()))?;
         frame.camera.clone_from(name);
@@ -162,6 +160,18 @@ impl CameraRig {
         let far = self.far;
         frame.depth.extend(depth.iter().map(|&d| if d >= far { 0.0 } else { d }));
         Ok(())
+    }
+
+    /// Draws camera `index` of `data` into the renderer's buffers.
+    pub(crate) fn draw(&mut self, data: &mut mujoco_rs::prelude::MjData<Box<mujoco_rs::prelude::MjModel>>, index: usize) -> Result<(), SimError> {
+        self.renderer.set_camera(MjvCamera::new_fixed(self.cameras[index].1));
+        self.renderer.sync_data(data).map_err(|e| SimError::Render(e.to_string()))?;
+        self.renderer.render().map_err(|e| SimError::Render(e.to_string()))
+    }
+
+    /// The RGB image of the last draw.
+    pub(crate) fn last_rgb(&self) -> &[u8] {
+        self.renderer.rgb_flat().unwrap_or_default()
     }
 
     /// Renders camera `index` of the world's current state.

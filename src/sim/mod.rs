@@ -14,4 +14,4 @@ pub use camera::{CameraRig, Intrinsics, RgbdFrame, Visuals};
 pub use cloud::{PointCloud, Workspace};
 pub use error::SimError;
 pub use crate::robot::JointVector;
-pub use world::{ArmDynamicsReference, ArmState, World};
+pub use world::{ArmDynamicsReference, ArmState, Video, World};

@@ -61,6 +61,26 @@ pub struct World {
     scene_path: PathBuf,
     data: MjData<Box<MjModel>>,
     arm: ArmIndex,
+    recorder: Option<Recorder>,
+}
+
+/// Frames of one camera captured while the world steps (for videos of episodes).
+struct Recorder {
+    rig: super::CameraRig,
+    camera: usize,
+    period: f64,
+    next: f64,
+    frames: Vec<Vec<u8>>,
+    error: Option<SimError>,
+}
+
+/// A recorded video: RGB frames (row 0 at the top) at a fixed rate.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Video {
+    pub width: usize,
+    pub height: usize,
+    pub fps: f64,
+    pub frames: Vec<Vec<u8>>,
 }
 
 impl std::fmt::Debug for World {
@@ -82,7 +102,7 @@ impl World {
         let model = Box::new(scene::compose(scene_path, extra, deps)?);
         let arm = ArmIndex::resolve(&model, scene_path)?;
         let data = MjData::new(model);
-        let mut world = Self { scene_path: scene_path.to_path_buf(), data, arm };
+        let mut world = Self { scene_path: scene_path.to_path_buf(), data, arm, recorder: None };
         world.reset_to("home")?;
         Ok(world)
     }
@@ -173,6 +193,38 @@ impl World {
     /// Advances the physics by one timestep with the current torques and gripper command.
     pub fn step(&mut self) {
         self.data.step();
+        if let Some(r) = self.recorder.as_mut()
+            && r.error.is_none()
+            && self.data.ffi().time >= r.next
+        {
+            r.next += r.period;
+            match r.rig.draw(&mut self.data, r.camera) {
+                Ok(()) => r.frames.push(r.rig.last_rgb().to_vec()),
+                Err(e) => r.error = Some(e),
+            }
+        }
+    }
+
+    /// Starts capturing `camera` at `fps` frames per second of simulated time while stepping
+    /// (square images of `size` pixels). Rendering costs a few ms per frame.
+    pub fn start_recording(&mut self, camera: &str, size: usize, fps: f64) -> Result<(), SimError> {
+        if !(fps > 0.0 && fps <= 1000.0) {
+            return Err(SimError::InvalidInput { what: "video frame rate", detail: format!("{fps} fps; expected (0, 1000]") });
+        }
+        let rig = super::CameraRig::new(self, size, super::Visuals::Full)?;
+        let index = rig.camera_index(camera)?;
+        self.recorder = Some(Recorder { rig, camera: index, period: 1.0 / fps, next: self.time(), frames: Vec::new(), error: None });
+        Ok(())
+    }
+
+    /// Stops capturing and returns the video.
+    pub fn stop_recording(&mut self) -> Result<Option<Video>, SimError> {
+        let Some(r) = self.recorder.take() else { return Ok(None) };
+        if let Some(e) = r.error {
+            return Err(e);
+        }
+        let size = r.rig.size();
+        Ok(Some(Video { width: size, height: size, fps: 1.0 / r.period, frames: r.frames }))
     }
 
     /// Joint torques (Nm) for the next steps. The motors clamp them to the Panda's rated
@@ -384,6 +436,17 @@ impl World {
     pub fn joint_position(&self, name: &str) -> Result<f64, SimError> {
         let id = self.id_of(MjtObjBase::mjOBJ_JOINT, "joint", name, self.model().ffi().njnt as usize)?;
         Ok(self.data.qpos()[self.model().jnt_qposadr()[id] as usize])
+    }
+
+    /// Sets a named one-coordinate joint (slide or hinge) at rest and recomputes kinematics.
+    pub fn set_joint_position(&mut self, name: &str, value: f64) -> Result<(), SimError> {
+        check_finite("joint position", &[value])?;
+        let id = self.id_of(MjtObjBase::mjOBJ_JOINT, "joint", name, self.model().ffi().njnt as usize)?;
+        let (qadr, vadr) = (self.model().jnt_qposadr()[id] as usize, self.model().jnt_dofadr()[id] as usize);
+        self.data.qpos_mut()[qadr] = value;
+        self.data.qvel_mut()[vadr] = 0.0;
+        self.data.forward();
+        Ok(())
     }
 
     fn id_of(&self, kind: MjtObjBase, label: &'static str, name: &str, count: usize) -> Result<usize, SimError> {

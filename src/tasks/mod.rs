@@ -8,6 +8,7 @@ pub mod colors;
 pub mod episode;
 pub mod grasp;
 pub mod open_drawer;
+pub mod push_buttons;
 
 use std::path::PathBuf;
 
@@ -71,7 +72,7 @@ pub trait Task: Send + Sync {
 
 /// Every task, in Table A's order.
 pub fn all() -> Vec<Box<dyn Task>> {
-    vec![Box::new(open_drawer::OpenDrawer)]
+    vec![Box::new(open_drawer::OpenDrawer), Box::new(push_buttons::PushButtons)]
 }
 
 pub fn by_name(name: &str) -> Result<Box<dyn Task>, TaskError> {

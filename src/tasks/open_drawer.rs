@@ -22,6 +22,7 @@ const PULL: f64 = 0.15;
 /// Handles higher than this above the base are approached pitched down.
 const LEVEL_LIMIT: f64 = 0.15;
 const PITCH: f64 = 0.5;
+const GRASP_DEPTH: f64 = 0.02;
 
 pub struct OpenDrawer;
 
@@ -54,7 +55,7 @@ impl Task for OpenDrawer {
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let drawer = &state.targets[0];
         let cabinet = world.body_pose("cabinet")?;
-        let handle = world.body_pose(&format!("{drawer}_drawer"))? * nalgebra::Point3::new(-0.2, 0.0, 0.0);
+        let handle = world.body_pose(&format!("{drawer}_drawer"))? * nalgebra::Point3::new(-0.215, 0.0, 0.0);
         // Approach along the cabinet's +x (toward its back), fingers closing horizontally.
         let inward = cabinet.rotation * Vector3::x();
         let level = horizontal(&inward);
@@ -65,7 +66,8 @@ impl Task for OpenDrawer {
         } else {
             level
         };
-        let h = handle.coords;
+        // The bar sits 2 cm deep between the finger pads, not at their tips.
+        let h = handle.coords + inward * GRASP_DEPTH;
         Ok(vec![
             keyframe(h - inward * 0.10, grip, true),
             keyframe(h, grip, false),

@@ -1,0 +1,112 @@
+//! push_buttons: "push the _ button" and sequences "push the _ button, then push the _ button"
+//! of up to three colours (Table A: colour(50)).
+//!
+//! Scene: `models/tasks/push_buttons.xml`, three sprung push buttons. Variations (50, from the
+//! 20 RLBench colours c): 0-19 push colour v; 20-34 push v-20 then v-19; 35-49 push v-35, v-34,
+//! v-33 (colours mod 20). The targets take random buttons; the other buttons get random
+//! distinct other colours. Reset: buttons at x in [0.42, 0.64] m, y in [-0.22, 0.22] m
+//! (world), at least 0.12 m apart. Expert (2 keyframes per button + a final lift): closed
+//! gripper above the cap, press 8 mm into it, on to the next. Success: the presses seen after
+//! each keyframe are exactly the target colours, in order.
+use nalgebra::{Translation3, Vector2, Vector3};
+use rand::Rng;
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+
+use super::colors::{self, COLORS};
+use super::grasp::{keyframe, top_down};
+use super::{Task, TaskError, TaskState};
+use crate::control::runner::Keyframe;
+use crate::sim::World;
+
+const BUTTONS: usize = 3;
+/// Cap travel below which a button counts as pressed (m).
+const PRESSED: f64 = -0.006;
+/// How deep below the cap's top the expert aims the TCP (m).
+const PRESS_DEPTH: f64 = 0.008;
+/// Height of a cap's top above the table when up (m).
+const CAP_TOP: f64 = 0.032;
+
+pub struct PushButtons;
+
+/// The colours to push for a variation, in order.
+fn sequence(variation: usize) -> Vec<usize> {
+    match variation {
+        0..20 => vec![variation],
+        20..35 => vec![variation - 20, (variation - 19) % 20],
+        _ => vec![variation - 35, (variation - 34) % 20, (variation - 33) % 20],
+    }
+}
+
+impl Task for PushButtons {
+    fn name(&self) -> &'static str {
+        "push_buttons"
+    }
+
+    fn variation_count(&self) -> usize {
+        50
+    }
+
+    fn instruction(&self, variation: usize) -> String {
+        sequence(variation).iter().map(|&c| format!("push the {} button", colors::name(c))).collect::<Vec<_>>().join(", then ")
+    }
+
+    fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError> {
+        let targets = sequence(variation);
+        let mut others: Vec<usize> = (0..COLORS.len()).filter(|c| !targets.contains(c)).collect();
+        others.shuffle(rng);
+        let mut palette: Vec<usize> = targets.iter().copied().chain(others).take(BUTTONS).collect();
+        palette.shuffle(rng);
+        // Positions: rejection sampling for the minimum spacing.
+        let mut spots: Vec<Vector2<f64>> = Vec::new();
+        while spots.len() < BUTTONS {
+            let p = Vector2::new(rng.random_range(0.42..0.64), rng.random_range(-0.22..0.22));
+            if spots.iter().all(|q| (p - q).norm() > 0.12) {
+                spots.push(p);
+            }
+        }
+        for (i, (spot, &color)) in spots.iter().zip(&palette).enumerate() {
+            world.set_fixed_body_pose(&format!("button_{i}"), &Translation3::new(spot.x, spot.y, 0.75).into())?;
+            world.set_geom_rgba(&format!("button_{i}_cap"), colors::rgba(color))?;
+            world.set_joint_position(&format!("button_{i}_press"), 0.0)?;
+        }
+        // Targets as button names, in order; colour names remembered for events.
+        let names = targets
+            .iter()
+            .map(|c| format!("button_{}", palette.iter().position(|p| p == c).unwrap_or(0)))
+            .collect();
+        Ok(TaskState { targets: names, events: Vec::new() })
+    }
+
+    fn observe(&self, world: &World, state: &mut TaskState) {
+        for i in 0..BUTTONS {
+            let name = format!("button_{i}");
+            let pressed = world.joint_position(&format!("{name}_press")).is_ok_and(|x| x < PRESSED);
+            if pressed && state.events.last() != Some(&name) {
+                state.events.push(name);
+            }
+        }
+    }
+
+    fn success(&self, _world: &World, state: &TaskState) -> bool {
+        state.events == state.targets
+    }
+
+    fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
+        let down = top_down(0.0);
+        let mut keyframes = Vec::with_capacity(2 * state.targets.len() + 1);
+        let mut last = Vector3::zeros();
+        for name in &state.targets {
+            let base = world.body_pose(name)?.translation.vector;
+            let top = base + Vector3::new(0.0, 0.0, CAP_TOP);
+            keyframes.push(keyframe(top + Vector3::new(0.0, 0.0, 0.06), down, false));
+            // Aim the TCP 8 mm into the cap: the fingertips (8.6 mm beyond the TCP) bottom the cap
+            // out before, so this keyframe ends blocked a few mm short by design. A target the
+            // fingertips can just reach made the arm twist away under contact (open problem).
+            keyframes.push(keyframe(top - Vector3::new(0.0, 0.0, PRESS_DEPTH), down, false));
+            last = top;
+        }
+        keyframes.push(keyframe(last + Vector3::new(0.0, 0.0, 0.08), down, false));
+        Ok(keyframes)
+    }
+}

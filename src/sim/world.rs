@@ -449,6 +449,20 @@ impl World {
         Ok(())
     }
 
+    /// The contacts now, as pairs of geom names (unnamed geoms as `body:<name>`) with the
+    /// penetration distance (m, negative = overlapping); for diagnosing blocked motions.
+    pub fn contacts(&self) -> Vec<(String, String, f64)> {
+        let model = self.model();
+        let name = |g: i32| {
+            let g = g.max(0) as usize;
+            model.id_to_name(MjtObjBase::mjOBJ_GEOM, g).map(str::to_owned).unwrap_or_else(|| {
+                let b = model.geom_bodyid()[g].max(0) as usize;
+                format!("body:{}", model.id_to_name(MjtObjBase::mjOBJ_BODY, b).unwrap_or("?"))
+            })
+        };
+        self.data.contact().iter().map(|c| (name(c.geom[0]), name(c.geom[1]), c.dist)).collect()
+    }
+
     fn id_of(&self, kind: MjtObjBase, label: &'static str, name: &str, count: usize) -> Result<usize, SimError> {
         let model = self.data.model();
         model.name_to_id(kind, name).ok_or_else(|| SimError::UnknownName {

@@ -22,7 +22,8 @@ use crate::sim::World;
 const BUTTONS: usize = 3;
 /// Cap travel below which a button counts as pressed (m).
 const PRESSED: f64 = -0.006;
-/// How deep below the cap's top the expert aims the TCP (m).
+/// How far the closed fingertips reach beyond the TCP, and how deep the expert presses (m).
+const FINGERTIPS_BELOW_TCP: f64 = 0.0086;
 const PRESS_DEPTH: f64 = 0.008;
 /// Height of a cap's top above the table when up (m).
 const CAP_TOP: f64 = 0.032;
@@ -100,10 +101,8 @@ impl Task for PushButtons {
             let base = world.body_pose(name)?.translation.vector;
             let top = base + Vector3::new(0.0, 0.0, CAP_TOP);
             keyframes.push(keyframe(top + Vector3::new(0.0, 0.0, 0.06), down, false));
-            // Aim the TCP 8 mm into the cap: the fingertips (8.6 mm beyond the TCP) bottom the cap
-            // out before, so this keyframe ends blocked a few mm short by design. A target the
-            // fingertips can just reach made the arm twist away under contact (open problem).
-            keyframes.push(keyframe(top - Vector3::new(0.0, 0.0, PRESS_DEPTH), down, false));
+            // The closed fingertips reach 8.6 mm beyond the TCP: press the cap 8 mm (of 10).
+            keyframes.push(keyframe(top + Vector3::new(0.0, 0.0, FINGERTIPS_BELOW_TCP - PRESS_DEPTH), down, false));
             last = top;
         }
         keyframes.push(keyframe(last + Vector3::new(0.0, 0.0, 0.08), down, false));

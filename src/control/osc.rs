@@ -195,11 +195,13 @@ impl Osc {
         }
         let jac = &dynamics.jacobian;
 
-        // Integral, only near the reference (conditional integration), bounded.
+        // Integral, only near a reference at rest (conditional integration: while the reference
+        // moves, or in contact that holds the TCP off, it would wind up), bounded.
+        let at_rest = reference.posture.dq.norm() < 1e-6;
         for (part, gains) in [(0usize, &c.position), (3usize, &c.orientation)] {
             let e = error.fixed_rows::<3>(part).into_owned();
             let mut sum = self.integral.fixed_rows::<3>(part).into_owned();
-            if e.norm() < gains.integral_zone {
+            if at_rest && e.norm() < gains.integral_zone {
                 sum += e * self.dt;
             }
             let push = gains.integral.component_mul(&sum).norm();

@@ -449,6 +449,14 @@ impl World {
         Ok(())
     }
 
+    /// An external force (N, world frame) on a body's centre of mass, until changed.
+    pub fn apply_body_force(&mut self, name: &str, force: Vector3<f64>) -> Result<(), SimError> {
+        check_finite("force", force.as_slice())?;
+        let id = self.body_id(name)?;
+        self.data.xfrc_applied_mut()[id] = [force.x, force.y, force.z, 0.0, 0.0, 0.0];
+        Ok(())
+    }
+
     /// The contacts now, as pairs of geom names (unnamed geoms as `body:<name>`) with the
     /// penetration distance (m, negative = overlapping); for diagnosing blocked motions.
     pub fn contacts(&self) -> Vec<(String, String, f64)> {

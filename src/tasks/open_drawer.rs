@@ -1,27 +1,25 @@
-//! open_drawer: "open the _ drawer" (top, middle, bottom; 3 variations, Table A: placement(3)).
+//! open_drawer: "open the _ drawer" (left, middle, right; 3 variations, Table A: placement(3)).
+//! RLBench stacks the drawers (top, middle, bottom); ours stand side by side, because the Panda
+//! cannot hold its hand level 0.2-0.4 m above its base this close to its body (see the model).
 //!
-//! Scene: `models/tasks/open_drawer.xml`, a cabinet with three drawers facing the robot.
+//! Scene: `models/tasks/open_drawer.xml`, a low cabinet with three drawers facing the robot.
 //! Reset: the cabinet stands on the table at x in [0.70, 0.74] m, y in [-0.06, 0.06] m (world),
 //! turned by up to +-6 deg about z. Expert (3 keyframes): in front of the handle, at the
-//! handle and close the gripper, pull it 15 cm. The hand approaches level, or pitched down by
-//! 0.5 rad for handles more than 0.15 m above the robot's base, where the Panda cannot hold its
-//! hand level that close to its body. Success: the named drawer is open by more than 10 cm.
+//! handle and close the gripper, pull it 15 cm. The hand approaches level with the wrist above
+//! it (clear of the table), fingers closing around the vertical bar 2 cm deep between the pads. Success: the named drawer is open by more than 10 cm.
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::Rng;
 use rand::rngs::StdRng;
 
-use super::grasp::{horizontal, keyframe};
+use super::grasp::{horizontal_wrist_up, keyframe};
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;
 
-const DRAWERS: [&str; 3] = ["top", "middle", "bottom"];
+const DRAWERS: [&str; 3] = ["left", "middle", "right"];
 /// The drawer counts as open beyond this (m).
 const OPEN_THRESHOLD: f64 = 0.10;
 const PULL: f64 = 0.15;
-/// Handles higher than this above the base are approached pitched down.
-const LEVEL_LIMIT: f64 = 0.15;
-const PITCH: f64 = 0.5;
 const GRASP_DEPTH: f64 = 0.02;
 
 pub struct OpenDrawer;
@@ -58,14 +56,7 @@ impl Task for OpenDrawer {
         let handle = world.body_pose(&format!("{drawer}_drawer"))? * nalgebra::Point3::new(-0.215, 0.0, 0.0);
         // Approach along the cabinet's +x (toward its back), fingers closing horizontally.
         let inward = cabinet.rotation * Vector3::x();
-        let level = horizontal(&inward);
-        let above_base = handle.z - world.base_pose().translation.z;
-        let grip = if above_base > LEVEL_LIMIT {
-            // Pitch down about the horizontal axis across the approach.
-            UnitQuaternion::from_axis_angle(&nalgebra::Unit::new_normalize(Vector3::z().cross(&inward)), -PITCH) * level
-        } else {
-            level
-        };
+        let grip = horizontal_wrist_up(&inward);
         // The bar sits 2 cm deep between the finger pads, not at their tips.
         let h = handle.coords + inward * GRASP_DEPTH;
         Ok(vec![

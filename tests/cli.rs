@@ -152,3 +152,37 @@ fn tune_measures_a_step_and_plots_it() {
     let (info, _) = decode_png(&plot);
     assert_eq!((info.width, info.height), (1200, 800));
 }
+
+#[test]
+fn run_and_collect_write_what_they_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let gif = dir.path().join("episode.gif");
+    let out = common::flowram().args(["run", "--task", "push_buttons", "--seed", "1", "--json", "--video"]).arg(&gif).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(r["task"], "push_buttons");
+    assert_eq!(r["success"], true);
+    assert!(r["instruction"].as_str().unwrap().starts_with("push the "));
+    assert!(r["keyframes"].as_u64().unwrap() >= 3);
+    let bytes = std::fs::read(&gif).unwrap();
+    assert!(bytes.starts_with(b"GIF89a") && bytes.len() > 10_000, "an animated GIF");
+
+    let data = dir.path().join("data");
+    let out = common::flowram()
+        .args(["collect", "--task", "push_buttons", "--episodes", "2", "--seed", "5", "--cameras", "front,wrist", "--size", "64", "--json", "--out"])
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let c: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((c["episodes"].as_u64(), c["successes"].as_u64()), (Some(2), Some(2)));
+    assert!(c["keyframes_mean"].as_f64().unwrap() >= 3.0 && c["seconds"].as_f64().unwrap() > 0.0);
+    let loaded = flowram::data::load_dataset(&data).unwrap();
+    assert_eq!(loaded.episodes.len(), 2);
+    assert!(loaded.failures.is_empty());
+    assert!(loaded.episodes.iter().all(|e| e.success && e.cameras == ["front", "wrist"] && e.height == 64));
+
+    let out = common::flowram().args(["run", "--task", "juggle"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("push_buttons"));
+}

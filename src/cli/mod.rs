@@ -1,5 +1,6 @@
 //! Subcommands: parse arguments, call the library, print (text, or one JSON object with --json).
 mod bench;
+mod episodes;
 mod render;
 mod stack;
 mod track;
@@ -24,6 +25,10 @@ enum Command {
     Track(track::TrackArgs),
     /// Step response of a controller profile: rise time, overshoot, settling, plot.
     Tune(tune::TuneArgs),
+    /// One closed-loop episode of a task (expert or idle), optionally as an animated GIF.
+    Run(episodes::RunArgs),
+    /// Collect successful expert demonstrations of a task into a dataset (safetensors).
+    Collect(episodes::CollectArgs),
     /// Benchmarks that print the project's performance figures.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -35,6 +40,8 @@ pub fn run() -> ExitCode {
         Command::Render(args) => render::run(args),
         Command::Track(args) => track::run(args),
         Command::Tune(args) => tune::run(args),
+        Command::Run(args) => episodes::run(args),
+        Command::Collect(args) => episodes::collect(args),
         Command::Bench(cmd) => bench::run(cmd),
     };
     match result {

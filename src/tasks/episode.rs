@@ -53,13 +53,19 @@ pub struct EpisodeResult {
 const SETTLE_S: f64 = 0.3;
 
 /// Resets the task (seeded) and runs one episode.
+/// Which cameras to observe at each keyframe (indices into the rig's cameras).
+pub struct Observer<'a> {
+    pub rig: &'a mut CameraRig,
+    pub cameras: Vec<usize>,
+}
+
 pub fn run_episode(
     task: &dyn Task,
     world: &mut World,
     variation: usize,
     seed: u64,
     actor: Actor,
-    mut cameras: Option<&mut CameraRig>,
+    mut cameras: Option<&mut Observer<'_>>,
 ) -> Result<EpisodeResult, TaskError> {
     if variation >= task.variation_count() {
         return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 });
@@ -148,12 +154,49 @@ fn tcp_proprio(world: &World, gripper_open: bool) -> [f32; 8] {
     proprio_of(&Keyframe::at(&world.tcp_pose(), gripper_open))
 }
 
-fn observe(world: &mut World, cameras: Option<&mut CameraRig>, gripper_open: bool) -> Result<KeyframeObservation, TaskError> {
+fn observe(world: &mut World, cameras: Option<&mut Observer<'_>>, gripper_open: bool) -> Result<KeyframeObservation, TaskError> {
     let mut frames = Vec::new();
-    if let Some(rig) = cameras {
-        for i in 0..rig.camera_names().count() {
-            frames.push(rig.render(world, i)?);
+    if let Some(o) = cameras {
+        for &i in &o.cameras {
+            frames.push(o.rig.render(world, i)?);
         }
     }
     Ok(KeyframeObservation { frames, proprio: tcp_proprio(world, gripper_open) })
+}
+
+impl EpisodeResult {
+    /// The episode as a dataset record (needs observations with images).
+    pub fn to_dataset_episode(&self) -> Option<crate::data::Episode> {
+        let first = self.observations.first()?;
+        let cameras: Vec<String> = first.frames.iter().map(|f| f.camera.clone()).collect();
+        if cameras.is_empty() {
+            return None;
+        }
+        let (h, w) = (first.frames[0].intrinsics.height, first.frames[0].intrinsics.width);
+        let mut e = crate::data::Episode {
+            task: self.episode.task.to_string(),
+            variation: self.episode.variation,
+            instruction: self.episode.instruction.clone(),
+            seed: self.episode.seed,
+            cameras,
+            success: self.success,
+            height: h,
+            width: w,
+            rgb: Vec::new(),
+            depth: Vec::new(),
+            intrinsics: first.frames.iter().flat_map(|f| f.intrinsics.matrix().transpose().iter().map(|&v| v as f32).collect::<Vec<_>>()).collect(),
+            extrinsics: Vec::new(),
+            proprio: self.observations.iter().flat_map(|o| o.proprio).collect(),
+            action: self.actions.iter().flatten().copied().collect(),
+        };
+        for o in &self.observations {
+            for f in &o.frames {
+                e.rgb.extend_from_slice(&f.rgb);
+                e.depth.extend_from_slice(&f.depth);
+                // Row-major 4x4 (nalgebra stores column-major: transpose).
+                e.extrinsics.extend(f.extrinsics.to_homogeneous().transpose().iter().map(|&v| v as f32));
+            }
+        }
+        Some(e)
+    }
 }

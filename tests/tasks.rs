@@ -1,0 +1,86 @@
+//! Tasks: instructions follow the paper's templates, experts solve their tasks closed loop,
+//! doing nothing does not succeed, and demonstrations record what the arm really did.
+use flowram::sim::{CameraRig, Visuals};
+use flowram::tasks::episode::{Actor, Observer, run_episode};
+use flowram::tasks::{self, Task};
+
+fn matches_template(instruction: &str, template: &str, words: &[&str]) -> bool {
+    let (head, tail) = template.split_once('_').expect("template has a blank");
+    instruction.strip_prefix(head).and_then(|rest| rest.strip_suffix(tail)).is_some_and(|w| words.contains(&w))
+}
+
+#[test]
+fn instructions_follow_the_templates() {
+    let colors: Vec<&str> = flowram::tasks::colors::COLORS.iter().map(|c| c.0).collect();
+    let drawers = tasks::by_name("open_drawer").unwrap();
+    assert_eq!(drawers.variation_count(), 3);
+    for v in 0..3 {
+        assert!(matches_template(&drawers.instruction(v), "open the _ drawer", &["left", "middle", "right"]), "{}", drawers.instruction(v));
+    }
+    let buttons = tasks::by_name("push_buttons").unwrap();
+    assert_eq!(buttons.variation_count(), 50);
+    let mut seen = std::collections::HashSet::new();
+    for v in 0..50 {
+        let text = buttons.instruction(v);
+        let parts: Vec<&str> = text.split(", then ").collect();
+        assert!((1..=3).contains(&parts.len()), "{text}");
+        assert!(parts.iter().all(|p| matches_template(p, "push the _ button", &colors)), "{text}");
+        assert!(seen.insert(text.clone()), "variation {v} repeats an instruction: {text}");
+    }
+    let err = tasks::by_name("juggle").err().unwrap().to_string();
+    assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
+}
+
+fn success_rate(task: &dyn Task, actor: Actor, episodes: u64) -> usize {
+    let mut world = tasks::load_world(task).unwrap();
+    (0..episodes)
+        .filter(|&seed| {
+            let variation = (seed as usize * 7) % task.variation_count();
+            run_episode(task, &mut world, variation, seed, actor, None).unwrap().success
+        })
+        .count()
+}
+
+#[test]
+fn push_buttons_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("push_buttons").unwrap();
+    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
+    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn open_drawer_is_not_solved_by_idling() {
+    // The open_drawer expert is not yet reliable (see the README); its success check must still
+    // not be trivially true.
+    let task = tasks::by_name("open_drawer").unwrap();
+    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn recorded_actions_are_the_poses_the_arm_reached() {
+    let task = tasks::by_name("push_buttons").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let mut rig = CameraRig::new(&world, 64, Visuals::Fast).unwrap();
+    let cameras = vec![rig.camera_index("front").unwrap(), rig.camera_index("wrist").unwrap()];
+    let mut observer = Observer { rig: &mut rig, cameras };
+    let result = run_episode(task.as_ref(), &mut world, 27, 4, Actor::Expert, Some(&mut observer)).unwrap();
+    assert!(result.success);
+    let k = result.keyframes;
+    assert!(k >= 5 && result.observations.len() == k && result.actions.len() == k);
+    for i in 0..k {
+        let (a, r) = (&result.actions[i], &result.reached_poses[i]);
+        let dp = ((a[0] - r[0]).powi(2) + (a[1] - r[1]).powi(2) + (a[2] - r[2]).powi(2)).sqrt();
+        let dot = (a[3] * r[3] + a[4] * r[4] + a[5] * r[5] + a[6] * r[6]).abs().min(1.0);
+        let angle = 2.0 * dot.acos();
+        assert!(dp <= 1.5e-3 && angle <= 0.5f32.to_radians() * 1.5, "keyframe {i}: reached {dp} m / {angle} rad from the recorded action");
+        assert_eq!(a[7], r[7], "gripper state of keyframe {i}");
+        if i + 1 < k {
+            assert_eq!(&result.observations[i + 1].proprio, r, "observation {} is the state keyframe {i} reached", i + 1);
+        }
+    }
+    let episode = result.to_dataset_episode().unwrap();
+    episode.validate().unwrap();
+    assert_eq!(episode.cameras, vec!["front".to_string(), "wrist".to_string()]);
+    assert_eq!(episode.rgb.len(), k * 2 * 64 * 64 * 3);
+}

@@ -9,6 +9,7 @@ pub mod episode;
 pub mod grasp;
 pub mod open_drawer;
 pub mod push_buttons;
+pub mod slide_block;
 
 use std::path::PathBuf;
 
@@ -72,7 +73,7 @@ pub trait Task: Send + Sync {
 
 /// Every task, in Table A's order.
 pub fn all() -> Vec<Box<dyn Task>> {
-    vec![Box::new(open_drawer::OpenDrawer), Box::new(push_buttons::PushButtons)]
+    vec![Box::new(open_drawer::OpenDrawer), Box::new(push_buttons::PushButtons), Box::new(slide_block::SlideBlock)]
 }
 
 pub fn by_name(name: &str) -> Result<Box<dyn Task>, TaskError> {

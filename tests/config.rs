@@ -21,6 +21,9 @@ fn shipped_profiles_load() {
     assert_eq!(c.position.stiffness.x, 900.0);
     assert!((c.reached_orientation - 0.5f64.to_radians()).abs() < 1e-12, "deg converted to rad");
     assert!((c.reached_position - 0.001).abs() < 1e-12, "mm converted to m");
+    assert_eq!(c.time_limit, 0.0, "no wall-clock limit in the shipped (simulation) profile");
+    let real_time = osc_text().replace("time_limit = { value = 0.0, unit = \"us\" }", "time_limit = { value = 500.0, unit = \"us\" }");
+    let c = OscConfig::from_config(ConfigFile::parse(Path::new("osc.toml"), &real_time).unwrap()).unwrap();
     assert!((c.time_limit - 500e-6).abs() < 1e-12, "us converted to s");
     let l = JointLimits::panda().unwrap();
     assert_eq!(l.torque[0], 87.0);

@@ -5,6 +5,8 @@
 //! iterate clamped into the joint limits. If the seed does not converge, it restarts from the
 //! neutral posture and then from seeded random configurations. A pose that no configuration
 //! within the limits reaches to tolerance is an error, never a wrong answer.
+use std::f64::consts::{FRAC_PI_2, FRAC_PI_4};
+
 use nalgebra::{Isometry3, Matrix6, Quaternion, Translation3, UnitQuaternion, Vector3};
 use rand::{Rng, SeedableRng};
 
@@ -65,7 +67,7 @@ impl Default for IkConfig {
             restarts: 24,
             damping: 1e-4,
             limit_margin: 0.01,
-            neutral: JointVector::from_column_slice(&[0.0, -0.785398, 0.0, -2.356194, 0.0, 1.570796, 0.785398]),
+            neutral: JointVector::from_column_slice(&[0.0, -FRAC_PI_4, 0.0, -3.0 * FRAC_PI_4, 0.0, FRAC_PI_2, FRAC_PI_4]),
             nullspace_gain: 0.05,
             shoulder: Vector3::new(0.0, 0.0, 0.333),
             // Upper arm 0.316 + forearm 0.384 (+ 0.0825 offsets) + flange 0.107 + TCP 0.1034.

@@ -32,6 +32,8 @@ const N: usize = 7;
 const NX: usize = 14;
 /// Constraint rows: 7 torque rows (A = [M 0]), 7 acceleration rows (A = [I I]).
 const M: usize = 14;
+/// OSQP needs a positive time limit; this one never triggers.
+const NO_TIME_LIMIT_S: f64 = 1e6;
 /// The friction compensation changes by at most this fraction of the torque-rate limit per tick.
 const FRICTION_RAMP: f64 = 0.25;
 
@@ -149,7 +151,7 @@ impl Osc {
             .eps_rel(1e-5)
             .max_iter(config.max_iterations)
             .check_termination(Some(10))
-            .time_limit(Some(Duration::from_secs_f64(config.time_limit)));
+            .time_limit(Some(Duration::from_secs_f64(if config.time_limit > 0.0 { config.time_limit } else { NO_TIME_LIMIT_S })));
         let problem = Problem::new(&p, &lin, &a, &lower, &upper, &settings).map_err(|e| OscSetupError(format!("{e:?}")))?;
         Ok(Self {
             config,

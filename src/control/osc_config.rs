@@ -47,6 +47,7 @@ pub struct OscConfig {
     pub limit_horizon: f64,
     pub limit_margin: f64,
     pub max_iterations: u32,
+    /// Wall-clock limit of one solve (s); 0 = none (deterministic lock-step simulation).
     pub time_limit: f64,
     pub fallback_damping: JointVector,
     /// Fraction of the arm model's joint friction compensated (0 = none, 1 = all).
@@ -100,7 +101,7 @@ impl OscConfig {
             limit_horizon: f.quantity("qp.limit_horizon", Quantity::Time, Sign::Positive)?,
             limit_margin: f.quantity("qp.limit_margin", Quantity::Angle, Sign::NonNegative)?,
             max_iterations: max_iterations as u32,
-            time_limit: f.quantity("qp.time_limit", Quantity::Time, Sign::Positive)?,
+            time_limit: f.quantity("qp.time_limit", Quantity::Time, Sign::NonNegative)?,
             fallback_damping: JointVector::from_column_slice(&f.quantities::<7>("fallback.damping", Quantity::JointDamping, Sign::NonNegative)?),
             friction_compensation: {
                 let x = f.number_field("friction.compensation", Sign::NonNegative)?;

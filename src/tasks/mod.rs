@@ -4,6 +4,7 @@
 //! a success check on the simulator state, and an expert that computes keyframes (TCP pose +
 //! gripper) from the object poses, like RLBench's waypoints. `episode.rs` runs them closed
 //! loop through the control stack.
+pub mod close_jar;
 pub mod colors;
 pub mod episode;
 pub mod grasp;
@@ -73,7 +74,7 @@ pub trait Task: Send + Sync {
 
 /// Every task, in Table A's order.
 pub fn all() -> Vec<Box<dyn Task>> {
-    vec![Box::new(open_drawer::OpenDrawer), Box::new(push_buttons::PushButtons), Box::new(slide_block::SlideBlock)]
+    vec![Box::new(open_drawer::OpenDrawer), Box::new(push_buttons::PushButtons), Box::new(slide_block::SlideBlock), Box::new(close_jar::CloseJar)]
 }
 
 pub fn by_name(name: &str) -> Result<Box<dyn Task>, TaskError> {

@@ -1,0 +1,123 @@
+//! stack_blocks: "stack _ _ blocks", e.g. "stack 3 red blocks" (Table A: colour, count (60)).
+//!
+//! Scene: `models/tasks/stack_blocks.xml`, six 4 cm blocks and a stacking platform.
+//! Variations: 20 colours x counts 2, 3, 4 (v = 3 * colour + count - 2). Reset: four blocks of
+//! the target colour and two of other colours, at x in [0.38, 0.66] m, y in [-0.28, 0.28] m
+//! (world), at least 8 cm apart and from the platform, turned by up to 45 deg; the platform
+//! at x in [0.5, 0.58], y in [-0.05, 0.05]. Expert (6 keyframes per block): above the block,
+//! down and close, lift, above the stack, down to the next level and open, lift. Success: at
+//! least `count` blocks of the target colour on the platform's footprint (within 2.5 cm of its
+//! centre), one per level, the stack standing.
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
+use rand::Rng;
+use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
+
+use super::colors::{self, COLORS};
+use super::grasp::{keyframe, symmetric_yaw, top_down};
+use super::{Task, TaskError, TaskState};
+use crate::control::runner::Keyframe;
+use crate::sim::World;
+
+const TABLE_Z: f64 = 0.75;
+const BLOCKS: usize = 6;
+const TARGET_BLOCKS: usize = 4;
+const SIZE: f64 = 0.04;
+const PLATFORM_TOP: f64 = 0.005;
+
+pub struct StackBlocks;
+
+fn colour_and_count(variation: usize) -> (usize, usize) {
+    (variation / 3, variation % 3 + 2)
+}
+
+fn yaw_of(pose: &Isometry3<f64>) -> f64 {
+    let x = pose.rotation * Vector3::x();
+    x.y.atan2(x.x)
+}
+
+impl Task for StackBlocks {
+    fn name(&self) -> &'static str {
+        "stack_blocks"
+    }
+
+    fn variation_count(&self) -> usize {
+        COLORS.len() * 3
+    }
+
+    fn instruction(&self, variation: usize) -> String {
+        let (colour, count) = colour_and_count(variation);
+        format!("stack {count} {} blocks", colors::name(colour))
+    }
+
+    fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError> {
+        let (colour, count) = colour_and_count(variation);
+        let platform = Vector2::new(rng.random_range(0.5..0.58), rng.random_range(-0.05..0.05));
+        world.set_fixed_body_pose("platform", &Translation3::new(platform.x, platform.y, TABLE_Z).into())?;
+        let mut spots: Vec<Vector2<f64>> = Vec::new();
+        while spots.len() < BLOCKS {
+            let p = Vector2::new(rng.random_range(0.38..0.66), rng.random_range(-0.28..0.28));
+            if (p - platform).norm() > 0.12 && spots.iter().all(|q| (p - q).norm() > 0.08) {
+                spots.push(p);
+            }
+        }
+        let mut others: Vec<usize> = (0..COLORS.len()).filter(|&c| c != colour).collect();
+        others.shuffle(rng);
+        let mut targets = Vec::new();
+        for (i, spot) in spots.iter().enumerate() {
+            let name = format!("block_{i}");
+            let yaw = rng.random_range(-45f64..45.0).to_radians();
+            world.set_body_pose(
+                &name,
+                &Isometry3::from_parts(Translation3::new(spot.x, spot.y, TABLE_Z + SIZE / 2.0), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)),
+            )?;
+            let c = if i < TARGET_BLOCKS { colour } else { others[i - TARGET_BLOCKS] };
+            world.set_geom_rgba(&name, colors::rgba(c))?;
+            if i < TARGET_BLOCKS && targets.len() < count {
+                targets.push(name);
+            }
+        }
+        // `events` keeps the names of all target-colour blocks for the success check.
+        let events = (0..TARGET_BLOCKS).map(|i| format!("block_{i}")).collect();
+        Ok(TaskState { targets, events })
+    }
+
+    fn success(&self, world: &World, state: &TaskState) -> bool {
+        let Ok(platform) = world.body_pose("platform") else { return false };
+        let centre = platform.translation.vector.xy();
+        let mut levels: Vec<usize> = state
+            .events
+            .iter()
+            .filter_map(|b| world.body_pose(b).ok())
+            .filter(|p| (p.translation.vector.xy() - centre).norm() < 0.025)
+            .map(|p| ((p.translation.z - TABLE_Z - PLATFORM_TOP) / SIZE).floor().max(0.0) as usize)
+            .collect();
+        levels.sort_unstable();
+        levels.dedup();
+        let count = state.targets.len();
+        // Levels 0..count all occupied by target-colour blocks.
+        levels.len() >= count && levels.iter().take(count).enumerate().all(|(i, &l)| l == i)
+    }
+
+    fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
+        let platform = world.body_pose("platform")?.translation.vector;
+        let up = Vector3::new(0.0, 0.0, 0.12);
+        let mut keyframes = Vec::new();
+        for (level, name) in state.targets.iter().enumerate() {
+            let block = world.body_pose(name)?;
+            let yaw = symmetric_yaw(yaw_of(&block), std::f64::consts::FRAC_PI_2, 0.0);
+            let pick = block.translation.vector + Vector3::new(0.0, 0.0, 0.005);
+            let place = Vector3::new(platform.x, platform.y, TABLE_Z + PLATFORM_TOP + SIZE * (level as f64 + 0.5) + 0.005 + 0.004);
+            let (grip, release) = (top_down(yaw), top_down(0.0));
+            keyframes.extend([
+                keyframe(pick + up, grip, true),
+                keyframe(pick, grip, false),
+                keyframe(pick + up, grip, false),
+                keyframe(place + up, release, false),
+                keyframe(place, release, true),
+                keyframe(place + up, release, true),
+            ]);
+        }
+        Ok(keyframes)
+    }
+}

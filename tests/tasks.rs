@@ -27,6 +27,20 @@ fn instructions_follow_the_templates() {
         assert!(parts.iter().all(|p| matches_template(p, "push the _ button", &colors)), "{text}");
         assert!(seen.insert(text.clone()), "variation {v} repeats an instruction: {text}");
     }
+    let jars = tasks::by_name("close_jar").unwrap();
+    assert_eq!(jars.variation_count(), 20);
+    assert!((0..20).all(|v| matches_template(&jars.instruction(v), "close the _ jar", &colors)));
+    let slide = tasks::by_name("slide_block").unwrap();
+    assert_eq!(slide.variation_count(), 4);
+    assert!((0..4).all(|v| matches_template(&slide.instruction(v), "slide the block to _ target", &["green", "blue", "pink", "yellow"])));
+    let stack = tasks::by_name("stack_blocks").unwrap();
+    assert_eq!(stack.variation_count(), 60);
+    for v in 0..60 {
+        let text = stack.instruction(v);
+        let rest = text.strip_prefix("stack ").and_then(|r| r.strip_suffix(" blocks")).unwrap_or_else(|| panic!("{text}"));
+        let (count, colour) = rest.split_once(' ').unwrap();
+        assert!(["2", "3", "4"].contains(&count) && colors.contains(&colour), "{text}");
+    }
     let err = tasks::by_name("juggle").err().unwrap().to_string();
     assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
 }
@@ -50,11 +64,29 @@ fn push_buttons_expert_succeeds_and_idling_does_not() {
 }
 
 #[test]
-fn open_drawer_is_not_solved_by_idling() {
-    // The open_drawer expert is not yet reliable (see the README); its success check must still
-    // not be trivially true.
-    let task = tasks::by_name("open_drawer").unwrap();
+fn close_jar_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("close_jar").unwrap();
+    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
     assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn stack_blocks_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("stack_blocks").unwrap();
+    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
+    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn unreliable_experts_still_have_non_trivial_success_checks() {
+    // The open_drawer and slide_block experts do not reach 9/10 yet (see the README); their
+    // success checks must still not be trivially true.
+    for name in ["open_drawer", "slide_block"] {
+        let task = tasks::by_name(name).unwrap();
+        assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0, "{name}");
+    }
 }
 
 #[test]

@@ -6,13 +6,14 @@
 //! 0.12 m from both. Expert (6 keyframes): above the lid, down and close, lift, above the named
 //! jar, down until the lid rests on the rim and open, lift. Success: the lid upright (within 10
 //! deg) on the named jar: centre within 12 mm of its axis and resting on its rim.
-use nalgebra::{Translation3, Vector2, Vector3};
+use nalgebra::{Translation3, Vector3};
 use rand::Rng;
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::grasp::{keyframe, top_down};
+use super::layout::scatter;
+use super::grasp::{pick_and_place, top_down};
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;
@@ -37,14 +38,10 @@ impl Task for CloseJar {
     }
 
     fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError> {
-        let mut spots: Vec<Vector2<f64>> = Vec::new();
-        while spots.len() < 3 {
-            let p = Vector2::new(rng.random_range(0.45..0.62), rng.random_range(-0.22..0.22));
-            let min = if spots.len() < 2 { 0.14 } else { 0.12 };
-            if spots.iter().all(|q| (p - q).norm() > min) {
-                spots.push(p);
-            }
-        }
+        let spots = scatter(rng, 3, 0.45..0.62, -0.22..0.22, |placed, p| {
+            let gap = if placed.len() < 2 { 0.14 } else { 0.12 };
+            placed.iter().all(|q| (p - q).norm() > gap)
+        });
         let mut others: Vec<usize> = (0..COLORS.len()).filter(|&c| c != variation).collect();
         others.shuffle(rng);
         let target = rng.random_range(0..2usize);
@@ -69,18 +66,10 @@ impl Task for CloseJar {
         let lid = world.body_pose("lid")?.translation.vector;
         let jar = world.body_pose(&state.targets[0])?.translation.vector;
         let down = top_down(0.0);
-        let up = Vector3::new(0.0, 0.0, 0.12);
         // The fingers close across the lid 5 mm above its centre; it is set down 3 mm above the
         // rim and dropped.
         let grasp = lid + Vector3::new(0.0, 0.0, 0.005);
         let place = jar + Vector3::new(0.0, 0.0, JAR_HEIGHT + LID_HALF + 0.005 + 0.003);
-        Ok(vec![
-            keyframe(grasp + up, down, true),
-            keyframe(grasp, down, false),
-            keyframe(grasp + up, down, false),
-            keyframe(place + up, down, false),
-            keyframe(place, down, true),
-            keyframe(place + up, down, true),
-        ])
+        Ok(pick_and_place(grasp, down, place, down, 0.12).to_vec())
     }
 }

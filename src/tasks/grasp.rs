@@ -36,3 +36,23 @@ pub fn symmetric_yaw(body_yaw: f64, symmetry: f64, preferred: f64) -> f64 {
     let k = ((preferred - body_yaw) / symmetry).round();
     body_yaw + k * symmetry
 }
+
+/// The six keyframes of a pick and place: above the object, down and close, lift; above the
+/// place, down and open, lift (`clearance` metres above each).
+pub fn pick_and_place(
+    pick: Vector3<f64>,
+    pick_rotation: UnitQuaternion<f64>,
+    place: Vector3<f64>,
+    place_rotation: UnitQuaternion<f64>,
+    clearance: f64,
+) -> [Keyframe; 6] {
+    let up = Vector3::new(0.0, 0.0, clearance);
+    [
+        keyframe(pick + up, pick_rotation, true),
+        keyframe(pick, pick_rotation, false),
+        keyframe(pick + up, pick_rotation, false),
+        keyframe(place + up, place_rotation, false),
+        keyframe(place, place_rotation, true),
+        keyframe(place + up, place_rotation, true),
+    ]
+}

@@ -8,6 +8,7 @@ pub mod close_jar;
 pub mod colors;
 pub mod episode;
 pub mod grasp;
+pub mod layout;
 pub mod open_drawer;
 pub mod push_buttons;
 pub mod slide_block;

@@ -8,12 +8,12 @@
 //! (world), at least 0.12 m apart. Expert (2 keyframes per button + a final lift): closed
 //! gripper above the cap, press 8 mm into it, on to the next. Success: the presses seen after
 //! each keyframe are exactly the target colours, in order.
-use nalgebra::{Translation3, Vector2, Vector3};
-use rand::Rng;
+use nalgebra::{Translation3, Vector3};
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
+use super::layout::{apart, scatter};
 use super::grasp::{keyframe, top_down};
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
@@ -58,14 +58,7 @@ impl Task for PushButtons {
         others.shuffle(rng);
         let mut palette: Vec<usize> = targets.iter().copied().chain(others).take(BUTTONS).collect();
         palette.shuffle(rng);
-        // Positions: rejection sampling for the minimum spacing.
-        let mut spots: Vec<Vector2<f64>> = Vec::new();
-        while spots.len() < BUTTONS {
-            let p = Vector2::new(rng.random_range(0.42..0.64), rng.random_range(-0.22..0.22));
-            if spots.iter().all(|q| (p - q).norm() > 0.12) {
-                spots.push(p);
-            }
-        }
+        let spots = scatter(rng, BUTTONS, 0.42..0.64, -0.22..0.22, apart(0.12));
         for (i, (spot, &color)) in spots.iter().zip(&palette).enumerate() {
             world.set_fixed_body_pose(&format!("button_{i}"), &Translation3::new(spot.x, spot.y, 0.75).into())?;
             world.set_geom_rgba(&format!("button_{i}_cap"), colors::rgba(color))?;

@@ -14,7 +14,8 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::grasp::{keyframe, symmetric_yaw, top_down};
+use super::layout::{apart, scatter};
+use super::grasp::{pick_and_place, symmetric_yaw, top_down};
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;
@@ -54,13 +55,7 @@ impl Task for StackBlocks {
         let (colour, count) = colour_and_count(variation);
         let platform = Vector2::new(rng.random_range(0.5..0.58), rng.random_range(-0.05..0.05));
         world.set_fixed_body_pose("platform", &Translation3::new(platform.x, platform.y, TABLE_Z).into())?;
-        let mut spots: Vec<Vector2<f64>> = Vec::new();
-        while spots.len() < BLOCKS {
-            let p = Vector2::new(rng.random_range(0.38..0.66), rng.random_range(-0.28..0.28));
-            if (p - platform).norm() > 0.12 && spots.iter().all(|q| (p - q).norm() > 0.08) {
-                spots.push(p);
-            }
-        }
+        let spots = scatter(rng, BLOCKS, 0.38..0.66, -0.28..0.28, |placed, p| (p - platform).norm() > 0.12 && apart(0.08)(placed, p));
         let mut others: Vec<usize> = (0..COLORS.len()).filter(|&c| c != colour).collect();
         others.shuffle(rng);
         let mut targets = Vec::new();
@@ -101,22 +96,13 @@ impl Task for StackBlocks {
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let platform = world.body_pose("platform")?.translation.vector;
-        let up = Vector3::new(0.0, 0.0, 0.12);
         let mut keyframes = Vec::new();
         for (level, name) in state.targets.iter().enumerate() {
             let block = world.body_pose(name)?;
             let yaw = symmetric_yaw(yaw_of(&block), std::f64::consts::FRAC_PI_2, 0.0);
             let pick = block.translation.vector + Vector3::new(0.0, 0.0, 0.005);
             let place = Vector3::new(platform.x, platform.y, TABLE_Z + PLATFORM_TOP + SIZE * (level as f64 + 0.5) + 0.005 + 0.004);
-            let (grip, release) = (top_down(yaw), top_down(0.0));
-            keyframes.extend([
-                keyframe(pick + up, grip, true),
-                keyframe(pick, grip, false),
-                keyframe(pick + up, grip, false),
-                keyframe(place + up, release, false),
-                keyframe(place, release, true),
-                keyframe(place + up, release, true),
-            ]);
+            keyframes.extend(pick_and_place(pick, top_down(yaw), place, top_down(0.0), 0.12));
         }
         Ok(keyframes)
     }

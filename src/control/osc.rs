@@ -32,6 +32,8 @@ const N: usize = 7;
 const NX: usize = 14;
 /// Constraint rows: 7 torque rows (A = [M 0]), 7 acceleration rows (A = [I I]).
 const M: usize = 14;
+/// Within this distance of a position limit (rad), a joint's limit row stiffens.
+const LIMIT_BAND: f64 = 0.3;
 /// OSQP needs a positive time limit; this one never triggers.
 const NO_TIME_LIMIT_S: f64 = 1e6;
 /// The friction compensation changes by at most this fraction of the torque-rate limit per tick.
@@ -137,7 +139,7 @@ impl Osc {
         // A = [M 0; I I] (M dense, identities: 56 + 7 entries).
         let mut p = p_pattern();
         let mut a = a_pattern();
-        write_upper(p.data.to_mut(), &JointMatrix::identity(), config.slack_weight);
+        write_upper(p.data.to_mut(), &JointMatrix::identity(), &JointVector::repeat(config.slack_weight));
         write_constraints(a.data.to_mut(), &JointMatrix::identity());
         let lin = [0.0; NX];
         let (lower, upper) = ([-1.0; M], [1.0; M]);
@@ -281,7 +283,14 @@ impl Osc {
             self.upper[N + i] = ddq_bounds.1[i];
             self.lin[i] = gradient[i];
         }
-        write_upper(self.p.data.to_mut(), &hessian, c.slack_weight);
+        // The slack of a joint's limit row stiffens as the joint nears a position limit, so a
+        // task pushed by a contact cannot drive a joint into its limit.
+        let l = &self.limits;
+        let slack = JointVector::from_fn(|i, _| {
+            let d = (q[i] - l.position_min[i]).min(l.position_max[i] - q[i]).max(0.01);
+            c.slack_weight * (1.0 + (LIMIT_BAND / d).powi(2))
+        });
+        write_upper(self.p.data.to_mut(), &hessian, &slack);
         write_constraints(self.a.data.to_mut(), mass);
         self.problem.update_P(&self.p);
         self.problem.update_A(&self.a);
@@ -389,7 +398,7 @@ fn a_pattern() -> CscMatrix<'static> {
 }
 
 /// Values of P in `p_pattern` order.
-fn write_upper(data: &mut [f64], h: &JointMatrix, slack_weight: f64) {
+fn write_upper(data: &mut [f64], h: &JointMatrix, slack_weights: &JointVector) {
     let mut k = 0;
     for j in 0..N {
         for i in 0..=j {
@@ -397,8 +406,8 @@ fn write_upper(data: &mut [f64], h: &JointMatrix, slack_weight: f64) {
             k += 1;
         }
     }
-    for v in &mut data[k..] {
-        *v = slack_weight;
+    for (v, w) in data[k..].iter_mut().zip(slack_weights.iter()) {
+        *v = *w;
     }
 }
 

@@ -2,8 +2,8 @@
 //! Non-prehensile: the closed gripper pushes the block.
 //!
 //! Scene: `models/tasks/slide_block.xml`, a 5 cm block and four 12 cm target zones. Reset: the
-//! block at x in [0.47, 0.55] m, y in [-0.06, 0.06] m (world), turned by up to 20 deg; the
-//! zones 0.16 m from it toward +x, -x, +y and -y with their colours shuffled. Expert
+//! block at x in [0.50, 0.56] m, y in [-0.06, 0.06] m (world), turned by up to 10 deg; the
+//! zones 0.13 m from it toward +x, -x, +y and -y with their colours shuffled. Expert
 //! (4 keyframes): above the block on the far side from the target, down to 2 cm above the
 //! table, push along the line until the block's centre is on the zone's, lift. Success: the
 //! block's centre inside the named zone, block on the table.
@@ -19,7 +19,7 @@ use crate::sim::World;
 
 const TARGETS: [(&str, [f32; 4]); 4] =
     [("green", [0.0, 0.8, 0.0, 1.0]), ("blue", [0.0, 0.2, 1.0, 1.0]), ("pink", [1.0, 0.4, 0.7, 1.0]), ("yellow", [1.0, 0.9, 0.0, 1.0])];
-const ZONE_OFFSET: f64 = 0.16;
+const ZONE_OFFSET: f64 = 0.13;
 const ZONE_HALF: f64 = 0.06;
 const BLOCK_HALF: f64 = 0.025;
 const TABLE_Z: f64 = 0.75;
@@ -40,8 +40,8 @@ impl Task for SlideBlock {
     }
 
     fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError> {
-        let centre = Vector2::new(rng.random_range(0.47..0.55), rng.random_range(-0.06..0.06));
-        let yaw = rng.random_range(-20f64..20.0).to_radians();
+        let centre = Vector2::new(rng.random_range(0.50..0.56), rng.random_range(-0.06..0.06));
+        let yaw = rng.random_range(-10f64..10.0).to_radians();
         world.set_body_pose(
             "block",
             &nalgebra::Isometry3::from_parts(

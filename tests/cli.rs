@@ -185,4 +185,12 @@ fn run_and_collect_write_what_they_report() {
     let out = common::flowram().args(["run", "--task", "juggle"]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("push_buttons"));
+    let out = common::flowram().args(["run", "--task", "open_drawer", "--variation", "7"]).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("out of range"), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = common::flowram().args(["collect", "--task", "push_buttons", "--episodes", "1", "--cameras", "top", "--out"]).arg(dir.path().join("none")).output().unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("front, left_shoulder, right_shoulder, wrist") && !err.contains("panicked"), "{err}");
+    assert!(!dir.path().join("none").exists(), "nothing is written before the inputs are checked");
 }

@@ -100,7 +100,7 @@ pub fn run_episode(
     for (k, keyframe) in keyframes.iter().enumerate() {
         result.observations.push(observe(world, cameras.as_deref_mut(), gripper_open)?);
         result.actions.push(proprio_of(keyframe));
-        let report = runner.run(world, &[in_base(&base, keyframe)]).map_err(|e| TaskError::Config(e.to_string()))?;
+        let report = runner.run(world, &[in_base(&base, keyframe)?]).map_err(|e| TaskError::Config(e.to_string()))?;
         for r in &report.keyframes {
             if r.reached {
                 result.reached += 1;
@@ -140,9 +140,10 @@ fn hold(world: &mut World, runner: &mut Runner, seconds: f64) -> Result<(), Task
     Ok(())
 }
 
-fn in_base(base: &Isometry3<f64>, keyframe: &Keyframe) -> Keyframe {
-    let pose = crate::control::ik::target_pose(keyframe.position, keyframe.quat_wxyz).unwrap_or_else(|_| Isometry3::identity());
-    Keyframe::at(&(base.inverse() * pose), keyframe.gripper_open)
+fn in_base(base: &Isometry3<f64>, keyframe: &Keyframe) -> Result<Keyframe, TaskError> {
+    let pose = crate::control::ik::target_pose(keyframe.position, keyframe.quat_wxyz)
+        .map_err(|e| TaskError::Config(format!("the expert produced an invalid keyframe: {e}")))?;
+    Ok(Keyframe::at(&(base.inverse() * pose), keyframe.gripper_open))
 }
 
 fn proprio_of(k: &Keyframe) -> [f32; 8] {

@@ -64,7 +64,7 @@ impl Task for PushButtons {
             world.set_geom_rgba(&format!("button_{i}_cap"), colors::rgba(color))?;
             world.set_joint_position(&format!("button_{i}_press"), 0.0)?;
         }
-        // Targets as button names, in order; colour names remembered for events.
+        // Targets as button names, in the order to press them.
         let names = targets
             .iter()
             .map(|c| format!("button_{}", palette.iter().position(|p| p == c).unwrap_or(0)))

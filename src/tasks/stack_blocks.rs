@@ -72,18 +72,15 @@ impl Task for StackBlocks {
                 targets.push(name);
             }
         }
-        // `events` keeps the names of all target-colour blocks for the success check.
-        let events = (0..TARGET_BLOCKS).map(|i| format!("block_{i}")).collect();
-        Ok(TaskState { targets, events })
+        Ok(TaskState { targets, events: Vec::new() })
     }
 
     fn success(&self, world: &World, state: &TaskState) -> bool {
         let Ok(platform) = world.body_pose("platform") else { return false };
         let centre = platform.translation.vector.xy();
-        let mut levels: Vec<usize> = state
-            .events
-            .iter()
-            .filter_map(|b| world.body_pose(b).ok())
+        // Blocks 0..TARGET_BLOCKS carry the target colour (see `reset`).
+        let mut levels: Vec<usize> = (0..TARGET_BLOCKS)
+            .filter_map(|i| world.body_pose(&format!("block_{i}")).ok())
             .filter(|p| (p.translation.vector.xy() - centre).norm() < 0.025)
             .map(|p| ((p.translation.z - TABLE_Z - PLATFORM_TOP) / SIZE).floor().max(0.0) as usize)
             .collect();

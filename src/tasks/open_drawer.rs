@@ -4,14 +4,16 @@
 //!
 //! Scene: `models/tasks/open_drawer.xml`, a low cabinet with three drawers facing the robot.
 //! Reset: the cabinet stands on the table at x in [0.70, 0.74] m, y in [-0.06, 0.06] m (world),
-//! turned by up to +-6 deg about z. Expert (3 keyframes): in front of the handle, at the
-//! handle and close the gripper, pull it 15 cm. The hand approaches level with the wrist above
-//! it (clear of the table), fingers closing around the vertical bar 2 cm deep between the pads. Success: the named drawer is open by more than 10 cm.
+//! turned by up to +-6 deg about z. Expert (3 keyframes): 8 cm above the handle bar, down to
+//! it and close the gripper (pointing down, fingers closing along the pull around the
+//! horizontal bar), pull it 15 cm. Success: the named drawer is open by more than 10 cm.
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 use rand::Rng;
 use rand::rngs::StdRng;
 
-use super::grasp::{horizontal_wrist_up, keyframe};
+use std::f64::consts::{FRAC_PI_2, PI};
+
+use super::grasp::{keyframe, symmetric_yaw, top_down};
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;
@@ -20,7 +22,13 @@ const DRAWERS: [&str; 3] = ["left", "middle", "right"];
 /// The drawer counts as open beyond this (m).
 const OPEN_THRESHOLD: f64 = 0.10;
 const PULL: f64 = 0.15;
-const GRASP_DEPTH: f64 = 0.02;
+/// The handle bar's centre in the drawer's frame (m): see `models/tasks/open_drawer.xml`.
+const HANDLE: [f64; 3] = [-0.248, 0.0, 0.042];
+/// The TCP closes 1 cm in front of the bar (toward the robot), so the open rear finger clears
+/// the drawer front; closing then centres the bar (the drawer slides freely).
+const GRASP_OFFSET: f64 = 0.01;
+/// The TCP sits 5 mm below the bar's centre: the bar lies between the pads' upper parts.
+const GRASP_BELOW: f64 = 0.005;
 
 pub struct OpenDrawer;
 
@@ -53,14 +61,15 @@ impl Task for OpenDrawer {
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let drawer = &state.targets[0];
         let cabinet = world.body_pose("cabinet")?;
-        let handle = world.body_pose(&format!("{drawer}_drawer"))? * nalgebra::Point3::new(-0.215, 0.0, 0.0);
-        // Approach along the cabinet's +x (toward its back), fingers closing horizontally.
+        let handle = world.body_pose(&format!("{drawer}_drawer"))? * nalgebra::Point3::from(HANDLE);
+        // Toward the cabinet's back; the drawer opens along -inward.
         let inward = cabinet.rotation * Vector3::x();
-        let grip = horizontal_wrist_up(&inward);
-        // The bar sits 2 cm deep between the finger pads, not at their tips.
-        let h = handle.coords + inward * GRASP_DEPTH;
+        // From above, the fingers closing along the pull (TCP y = inward): pulling presses the
+        // rear finger against the bar.
+        let grip = top_down(symmetric_yaw(inward.y.atan2(inward.x) + FRAC_PI_2, PI, 0.0));
+        let h = handle.coords - inward * GRASP_OFFSET - Vector3::z() * GRASP_BELOW;
         Ok(vec![
-            keyframe(h - inward * 0.10, grip, true),
+            keyframe(h + Vector3::z() * 0.08, grip, true),
             keyframe(h, grip, false),
             keyframe(h - inward * PULL, grip, false),
         ])

@@ -4,7 +4,11 @@
 #  2. a closed-loop run of keyframes through IK -> ruckig -> OSC at 1 kHz (log: out/demo/track.csv)
 #     and a 10 cm step response of the controller (plot: out/demo/step.png);
 #  3. an expert episode of a task, as an animated GIF (out/demo/push_buttons.gif);
-#  4. the simulator, renderer and controller benchmarks.
+#  4. the simulator, renderer and controller benchmarks;
+#  5. the FlowRAM policy: demonstrations of two tasks, a short training run (out/demo/policy:
+#     metrics.csv, loss.png, checkpoints), a prediction on a held-out episode, and the policy
+#     latency benchmark. FLOWRAM_DEMO_TRAIN_STEPS (default 300) sets the training length; the
+#     CPU config's full 2000 steps take about 25 min.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 scripts/setup.sh
@@ -18,3 +22,12 @@ echo "open out/demo/<camera>/rgb.png, or out/demo/merged.ply in MeshLab / Open3D
 "$bin" bench sim
 "$bin" bench render
 "$bin" bench control
+steps="${FLOWRAM_DEMO_TRAIN_STEPS:-300}"
+for task in push_buttons open_drawer; do
+  [ -f "out/demo/data/$task/index.json" ] || "$bin" collect --task "$task" --episodes 10 --out "out/demo/data/$task"
+  [ -f "out/demo/data/held_out_$task/index.json" ] || "$bin" collect --task "$task" --episodes 2 --seed 1000 --out "out/demo/data/held_out_$task"
+done
+rm -rf out/demo/policy
+"$bin" train --data out/demo/data/push_buttons,out/demo/data/open_drawer --out out/demo/policy --steps "$steps"
+"$bin" predict --checkpoint out/demo/policy --episode out/demo/data/held_out_open_drawer/episode_00000.safetensors --keyframe 1 --samples 3
+"$bin" bench policy

@@ -5,6 +5,7 @@ pub mod control;
 pub mod data;
 pub mod deps;
 pub mod files;
+pub mod policy;
 pub mod robot;
 pub mod sim;
 pub mod tasks;

@@ -14,6 +14,10 @@ pub enum BenchCommand {
     Render(RenderBenchArgs),
     /// Per-tick compute time of the control stack over a long tracking run, and IK time.
     Control(ControlBenchArgs),
+    /// FlowRAM latency from observation to keyframe (Table C grid) and training-step time.
+    Policy(super::policy::PolicyBenchArgs),
+    /// Held-out keyframe errors of a trained policy against the training-mean baseline.
+    Heldout(super::policy::HeldOutArgs),
 }
 
 #[derive(Debug, Args)]
@@ -106,6 +110,8 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Sim(args) => sim(args),
         BenchCommand::Render(args) => render(args),
         BenchCommand::Control(args) => control(args),
+        BenchCommand::Policy(args) => super::policy::bench_cmd(args),
+        BenchCommand::Heldout(args) => super::policy::heldout_cmd(args),
     }
 }
 

@@ -1,6 +1,7 @@
 //! Subcommands: parse arguments, call the library, print (text, or one JSON object with --json).
 mod bench;
 mod episodes;
+mod policy;
 mod render;
 mod stack;
 mod track;
@@ -29,6 +30,10 @@ enum Command {
     Run(episodes::RunArgs),
     /// Collect successful expert demonstrations of a task into a dataset (safetensors).
     Collect(episodes::CollectArgs),
+    /// Train the FlowRAM policy on datasets (progress bar, metrics.csv, loss.png, checkpoints).
+    Train(policy::TrainArgs),
+    /// Predict the next keyframe of a dataset episode with a trained policy.
+    Predict(policy::PredictArgs),
     /// Benchmarks that print the project's performance figures.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
@@ -42,6 +47,8 @@ pub fn run() -> ExitCode {
         Command::Tune(args) => tune::run(args),
         Command::Run(args) => episodes::run(args),
         Command::Collect(args) => episodes::collect(args),
+        Command::Train(args) => policy::train_cmd(args),
+        Command::Predict(args) => policy::predict_cmd(args),
         Command::Bench(cmd) => bench::run(cmd),
     };
     match result {

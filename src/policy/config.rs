@@ -1,0 +1,176 @@
+//! The policy's configuration: observation, network, flow and training hyper-parameters, read
+//! from TOML (`models/policy/*.toml`) and stored as JSON in every checkpoint. Every value is
+//! validated and a wrong one is named.
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use super::error::{PolicyError, Result};
+use super::geometry::{RadiusSchedule, WorkspaceBounds};
+
+/// Everything that defines a FlowRAM model and how it is trained.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PolicyConfig {
+    pub observation: ObservationConfig,
+    pub model: ModelConfig,
+    pub radius_schedule: RadiusSchedule,
+    pub flow: FlowConfig,
+    pub train: TrainConfig,
+}
+
+/// How an observation becomes tokens.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ObservationConfig {
+    /// Square camera images (pixels); datasets must match.
+    pub image_size: usize,
+    /// Output stride of the image encoder: each camera gives (size/stride)^2 feature pixels,
+    /// each lifted to the world xyz of its depth pixel.
+    pub feature_stride: usize,
+    /// The workspace box (world frame, metres): points outside are dropped; positions (points and
+    /// actions) are normalised to [-1, 1] over it.
+    pub workspace: WorkspaceBounds,
+    /// N1: semantic tokens (farthest point sampled from the lifted feature pixels).
+    pub semantic_tokens: usize,
+    /// N2: geometric tokens (sampled around the noisy action position by the radius schedule).
+    pub geometric_tokens: usize,
+    /// Fewer points than this within r(t): geometric tokens fall back to global sampling.
+    pub min_inside: usize,
+    /// Language tokens: the instruction's MiniLM tokens, truncated or padded to this count.
+    pub language_tokens: usize,
+}
+
+/// The network.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ModelConfig {
+    /// C: token width = Mamba d_model (Table B: 120).
+    pub channels: usize,
+    pub d_state: usize,
+    pub d_conv: usize,
+    pub expand: usize,
+    /// Mamba blocks over [language, semantic, geometric, action].
+    pub layers: usize,
+}
+
+/// Conditional flow matching.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlowConfig {
+    /// Euler steps at inference (Table C: 2 to 32).
+    pub sampling_steps: usize,
+    /// Loss = cfm_weight * velocity MSE + open_weight * gripper BCE (supplementary: 100, 10).
+    pub cfm_weight: f64,
+    pub open_weight: f64,
+}
+
+/// Training.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    pub steps: usize,
+    pub batch: usize,
+    /// Peak learning rate (after warm-up).
+    pub learning_rate: f64,
+    /// Linear warm-up from 0 over this many steps.
+    pub warmup_steps: usize,
+    /// Cosine decay from `learning_rate` to `min_learning_rate` at `steps` (false: constant).
+    pub cosine_decay: bool,
+    pub min_learning_rate: f64,
+    pub weight_decay: f64,
+    pub betas: [f64; 2],
+    /// Decay of the exponential moving average of the weights used for inference.
+    pub ema_decay: f64,
+    /// Gradient-norm clipping (0 = none).
+    pub grad_clip: f64,
+    pub seed: u64,
+    /// Augmentation: the whole scene (points, proprioception, action) shifted by a uniform
+    /// random offset of up to this many metres per axis.
+    pub translation_jitter: f64,
+    /// Augmentation: image brightness scaled by a uniform factor in [1 - b, 1 + b].
+    pub brightness_jitter: f64,
+    pub checkpoint_every: usize,
+    pub log_every: usize,
+}
+
+impl PolicyConfig {
+    /// Reads and validates a TOML file.
+    pub fn from_toml_file(path: &Path) -> Result<Self> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| PolicyError::File { path: path.into(), message: format!("cannot read the policy config: {e}") })?;
+        let config: Self = toml::from_str(&text).map_err(|e| PolicyError::File { path: path.into(), message: e.to_string() })?;
+        config.validate().map_err(|e| PolicyError::File { path: path.into(), message: e.to_string() })?;
+        Ok(config)
+    }
+
+    /// The CPU-sized default (`models/policy/cpu.toml`).
+    pub fn cpu_default() -> Result<Self> {
+        Self::from_toml_file(&crate::deps::models_dir().join("policy/cpu.toml"))
+    }
+
+    /// The learning rate of optimiser step `step` (1-based): warm-up, then constant or cosine.
+    pub fn learning_rate_at(&self, step: u64) -> f64 {
+        let t = &self.train;
+        super::optim::LearningRateSchedule {
+            base: t.learning_rate,
+            warmup_steps: t.warmup_steps as u64,
+            decay_until: t.cosine_decay.then_some(t.steps as u64),
+            min: t.min_learning_rate,
+        }
+        .at(step)
+    }
+
+    /// Checks every value; the error names the field.
+    pub fn validate(&self) -> Result<()> {
+        let o = &self.observation;
+        let bad = |field: &str, expected: &str, got: String| {
+            Err(PolicyError::Invalid(format!("policy config: {field} must be {expected}; got {got}")))
+        };
+        if o.image_size == 0 || o.feature_stride == 0 || o.image_size % o.feature_stride != 0 {
+            return bad("observation.feature_stride", "positive and divide observation.image_size", format!("{} / {}", o.feature_stride, o.image_size));
+        }
+        for (field, v) in [
+            ("observation.semantic_tokens", o.semantic_tokens),
+            ("observation.geometric_tokens", o.geometric_tokens),
+            ("observation.min_inside", o.min_inside),
+            ("observation.language_tokens", o.language_tokens),
+            ("model.channels", self.model.channels),
+            ("model.d_state", self.model.d_state),
+            ("model.d_conv", self.model.d_conv),
+            ("model.expand", self.model.expand),
+            ("model.layers", self.model.layers),
+            ("flow.sampling_steps", self.flow.sampling_steps),
+            ("train.batch", self.train.batch),
+            ("train.checkpoint_every", self.train.checkpoint_every),
+            ("train.log_every", self.train.log_every),
+        ] {
+            if v == 0 {
+                return bad(field, "positive", v.to_string());
+            }
+        }
+        if self.model.channels % 6 != 0 {
+            return bad("model.channels", "a multiple of 6 (the 3D positional encoding uses sin and cos per axis)", self.model.channels.to_string());
+        }
+        self.radius_schedule.validate()?;
+        let t = &self.train;
+        for (field, v, ok) in [
+            ("flow.cfm_weight", self.flow.cfm_weight, self.flow.cfm_weight >= 0.0),
+            ("flow.open_weight", self.flow.open_weight, self.flow.open_weight >= 0.0),
+            ("train.learning_rate", t.learning_rate, t.learning_rate > 0.0),
+            ("train.weight_decay", t.weight_decay, t.weight_decay >= 0.0),
+            ("train.min_learning_rate", t.min_learning_rate, (0.0..=t.learning_rate).contains(&t.min_learning_rate)),
+            ("train.betas[0]", t.betas[0], (0.0..1.0).contains(&t.betas[0])),
+            ("train.betas[1]", t.betas[1], (0.0..1.0).contains(&t.betas[1])),
+            ("train.ema_decay", t.ema_decay, (0.0..1.0).contains(&t.ema_decay)),
+            ("train.grad_clip", t.grad_clip, t.grad_clip >= 0.0),
+            ("train.translation_jitter", t.translation_jitter, (0.0..0.2).contains(&t.translation_jitter)),
+            ("train.brightness_jitter", t.brightness_jitter, (0.0..1.0).contains(&t.brightness_jitter)),
+        ] {
+            if !(v.is_finite() && ok) {
+                return bad(field, "finite and in its range (see models/policy/cpu.toml)", v.to_string());
+            }
+        }
+        Ok(())
+    }
+}

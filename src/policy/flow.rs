@@ -1,0 +1,587 @@
+//! Conditional flow matching for the next keyframe action (FlowRAM, supplementary
+//! Algorithms 1 and 2): the action layout, the noisy training pair
+//! (`a_t = t*a1 + (1-t)*a0`, target velocity `a1 - a0`), the weighted loss
+//! (`100 * L_CFM + 10 * L_open`, Table B) and the accumulating Euler sampler.
+//!
+//! Action layout (one row of a `[B, ACTION_DIMS]` tensor):
+//! `[x, y, z, r00, r10, r20, r01, r11, r21]` — the keyframe position normalised
+//! to the workspace box (each axis in [-1, 1]) followed by the 6D rotation, the
+//! first two *columns* of the rotation matrix (Zhou et al. 2019). These nine
+//! dimensions are flowed. The gripper-open state is not flowed: the network
+//! predicts it as one logit per sample, trained with BCE.
+
+use candle_core::{DType, Device, Tensor};
+use rand::Rng;
+use serde::{Deserialize, Serialize};
+
+use crate::policy::error::{PolicyError, Result};
+
+/// Position dimensions of the flowed action (normalised to the workspace, [-1, 1]).
+pub const POSITION_DIMS: usize = 3;
+/// 6D rotation dimensions of the flowed action (first two rotation-matrix columns).
+pub const ROTATION_DIMS: usize = 6;
+/// All flowed dimensions: `POSITION_DIMS + ROTATION_DIMS`.
+pub const ACTION_DIMS: usize = POSITION_DIMS + ROTATION_DIMS;
+
+/// Weights of the two loss terms (supplementary Table B: L_CFM 100, L_open 10).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct LossWeights {
+    /// Weight of the velocity MSE (L_CFM).
+    pub cfm: f64,
+    /// Weight of the gripper-open BCE-with-logits (L_open).
+    pub open: f64,
+}
+
+impl Default for LossWeights {
+    fn default() -> Self {
+        Self {
+            cfm: 100.0,
+            open: 10.0,
+        }
+    }
+}
+
+/// How the flow time `t` of a training sample is drawn.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize, Default)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum FlowTimeSampling {
+    /// `t ~ U[0, 1)` (Algorithm 1; the default).
+    #[default]
+    Uniform,
+    /// `t = sigmoid(mean + std * z)`, `z ~ N(0, 1)` (Esser et al. 2024): more
+    /// samples at intermediate times. Off unless asked for.
+    LogitNormal { mean: f64, std: f64 },
+}
+
+impl FlowTimeSampling {
+    /// Checks the parameters (a logit-normal std must be positive and finite).
+    pub fn validate(&self) -> Result<()> {
+        match *self {
+            FlowTimeSampling::Uniform => Ok(()),
+            FlowTimeSampling::LogitNormal { mean, std } => {
+                if mean.is_finite() && std.is_finite() && std > 0.0 {
+                    Ok(())
+                } else {
+                    Err(PolicyError::Invalid(format!(
+                        "flow time sampling: logit-normal needs a finite mean and a positive finite std, got mean {mean}, std {std}"
+                    )))
+                }
+            }
+        }
+    }
+}
+
+/// One standard-normal draw (Box–Muller; deterministic given the RNG).
+pub fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
+    // 1 - U[0,1) lies in (0, 1], so the log is finite.
+    let u1: f64 = 1.0 - rng.random::<f64>();
+    let u2: f64 = rng.random::<f64>();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
+/// Draws `batch` flow times in [0, 1) (`[B]` as a Vec, f32).
+pub fn sample_flow_times<R: Rng + ?Sized>(
+    rng: &mut R,
+    batch: usize,
+    sampling: FlowTimeSampling,
+) -> Result<Vec<f32>> {
+    sampling.validate()?;
+    let times = (0..batch)
+        .map(|_| match sampling {
+            FlowTimeSampling::Uniform => rng.random::<f32>(),
+            FlowTimeSampling::LogitNormal { mean, std } => {
+                let logit = mean + std * standard_normal(rng);
+                // Keep strictly below 1 like the uniform case.
+                ((1.0 / (1.0 + (-logit).exp())) as f32).min(1.0 - f32::EPSILON)
+            }
+        })
+        .collect();
+    Ok(times)
+}
+
+/// Source noise `a0 ~ N(0, I)` of the flow, `[batch, dims]` f32 on `device`.
+pub fn sample_source_noise<R: Rng + ?Sized>(
+    rng: &mut R,
+    batch: usize,
+    dims: usize,
+    device: &Device,
+) -> Result<Tensor> {
+    let values: Vec<f32> = (0..batch * dims)
+        .map(|_| standard_normal(rng) as f32)
+        .collect();
+    Ok(Tensor::from_vec(values, (batch, dims), device)?)
+}
+
+fn check_same_shape(what: &str, a: &Tensor, b: &Tensor) -> Result<()> {
+    if a.dims() != b.dims() {
+        return Err(PolicyError::Invalid(format!(
+            "{what}: shapes differ, {:?} vs {:?}; both must be [B, {ACTION_DIMS}]",
+            a.dims(),
+            b.dims()
+        )));
+    }
+    if a.dtype() != b.dtype() {
+        return Err(PolicyError::Invalid(format!(
+            "{what}: dtypes differ, {:?} vs {:?}",
+            a.dtype(),
+            b.dtype()
+        )));
+    }
+    Ok(())
+}
+
+/// Reshapes per-sample times `t [B]` so they broadcast over `like [B, ...]`.
+fn broadcast_times(t: &Tensor, like: &Tensor) -> Result<Tensor> {
+    let batch = like.dim(0)?;
+    if t.dims() != [batch] {
+        return Err(PolicyError::Invalid(format!(
+            "flow times must be [B] = [{batch}] (one t per sample), got {:?}",
+            t.dims()
+        )));
+    }
+    let mut shape = vec![1usize; like.rank()];
+    shape[0] = batch;
+    Ok(t.to_dtype(like.dtype())?.reshape(shape)?)
+}
+
+/// The point on the straight path from noise to data:
+/// `a_t = t * a1 + (1 - t) * a0`.
+///
+/// `a0` (noise) and `a1` (expert action): `[B, D]` (D = `ACTION_DIMS` for
+/// FlowRAM); `t`: `[B]`, one flow time per sample. Returns `[B, D]`.
+pub fn interpolate(a0: &Tensor, a1: &Tensor, t: &Tensor) -> Result<Tensor> {
+    check_same_shape("interpolate(a0, a1)", a0, a1)?;
+    if a0.rank() < 1 {
+        return Err(PolicyError::Invalid(
+            "interpolate: actions must be batched, [B, D]".into(),
+        ));
+    }
+    let t = broadcast_times(t, a1)?;
+    // a0 + t * (a1 - a0) == t*a1 + (1-t)*a0.
+    let direction = (a1 - a0)?;
+    Ok(a0.add(&direction.broadcast_mul(&t)?)?)
+}
+
+/// The conditional target velocity of the straight path, `u = a1 - a0` (`[B, D]`).
+pub fn target_velocity(a0: &Tensor, a1: &Tensor) -> Result<Tensor> {
+    check_same_shape("target_velocity(a0, a1)", a0, a1)?;
+    Ok((a1 - a0)?)
+}
+
+/// Everything one training step needs from Algorithm 1 for a batch of expert
+/// actions.
+#[derive(Debug, Clone)]
+pub struct FlowTrainingSample {
+    /// Source noise `a0 ~ N(0, I)`, `[B, D]`.
+    pub a0: Tensor,
+    /// Flow times, `[B]` f32 in [0, 1).
+    pub t: Tensor,
+    /// Noisy action `a_t`, `[B, D]` — the network's action input.
+    pub a_t: Tensor,
+    /// Target velocity `a1 - a0`, `[B, D]` — what the network regresses.
+    pub target_velocity: Tensor,
+}
+
+/// Draws `a0` and `t` (in that order from `rng`) for expert actions
+/// `a1 [B, D]` (f32) and builds `a_t` and the target velocity.
+pub fn flow_training_sample<R: Rng + ?Sized>(
+    a1: &Tensor,
+    rng: &mut R,
+    sampling: FlowTimeSampling,
+) -> Result<FlowTrainingSample> {
+    let (batch, dims) = a1.dims2().map_err(|_| {
+        PolicyError::Invalid(format!(
+            "expert actions must be [B, {ACTION_DIMS}], got {:?}",
+            a1.dims()
+        ))
+    })?;
+    let a1 = a1.to_dtype(DType::F32)?;
+    let a0 = sample_source_noise(rng, batch, dims, a1.device())?;
+    let t = Tensor::from_vec(sample_flow_times(rng, batch, sampling)?, batch, a1.device())?;
+    let a_t = interpolate(&a0, &a1, &t)?;
+    let target_velocity = target_velocity(&a0, &a1)?;
+    Ok(FlowTrainingSample {
+        a0,
+        t,
+        a_t,
+        target_velocity,
+    })
+}
+
+/// Mean binary cross-entropy with logits, computed stably as
+/// `max(x, 0) - x*y + ln(1 + exp(-|x|))`. `logits`, `targets`: same shape,
+/// targets in [0, 1]. Returns a scalar.
+pub fn bce_with_logits(logits: &Tensor, targets: &Tensor) -> Result<Tensor> {
+    if logits.dims() != targets.dims() {
+        return Err(PolicyError::Invalid(format!(
+            "bce_with_logits: logits {:?} and targets {:?} must have the same shape",
+            logits.dims(),
+            targets.dims()
+        )));
+    }
+    let targets = targets.to_dtype(logits.dtype())?;
+    let softplus_neg_abs = logits.abs()?.neg()?.exp()?.affine(1.0, 1.0)?.log()?;
+    let per_sample = ((logits.relu()? - (logits * &targets)?)? + softplus_neg_abs)?;
+    Ok(per_sample.mean_all()?)
+}
+
+/// The FlowRAM training loss.
+///
+/// `v_pred`, `target`: `[B, ACTION_DIMS]` predicted and target velocities;
+/// `open_logit`, `open_target`: `[B]` gripper-open logit and label (1 = open).
+/// Returns scalars `(total, cfm, bce)` with `cfm` = mean squared error over all
+/// `B * D` elements, `bce` = mean BCE-with-logits, and
+/// `total = weights.cfm * cfm + weights.open * bce`.
+pub fn flow_matching_loss(
+    v_pred: &Tensor,
+    target: &Tensor,
+    open_logit: &Tensor,
+    open_target: &Tensor,
+    weights: &LossWeights,
+) -> Result<(Tensor, Tensor, Tensor)> {
+    check_same_shape("flow_matching_loss(v_pred, target)", v_pred, target)?;
+    let batch = v_pred.dim(0)?;
+    if open_logit.dims() != [batch] || open_target.dims() != [batch] {
+        return Err(PolicyError::Invalid(format!(
+            "flow_matching_loss: open_logit {:?} and open_target {:?} must both be [B] = [{batch}]",
+            open_logit.dims(),
+            open_target.dims()
+        )));
+    }
+    let cfm = (v_pred - target)?.sqr()?.mean_all()?;
+    let bce = bce_with_logits(open_logit, open_target)?;
+    let total = (cfm.affine(weights.cfm, 0.0)? + bce.affine(weights.open, 0.0)?)?;
+    Ok((total, cfm, bce))
+}
+
+/// Euler integration of the learned velocity field from noise to an action
+/// (Algorithm 2, accumulating): `a <- a + v(a, k/K) / K` for `k = 0..K`.
+///
+/// `a0`: `[B, D]` source noise; `steps` = K >= 1; `velocity(a, t)` returns
+/// `[B, D]` at the current state `a` and flow time `t = k/K` (so t runs over
+/// 0, 1/K, ..., (K-1)/K and never reaches 1). Returns the final `a`.
+pub fn euler_sample<F>(a0: Tensor, steps: usize, mut velocity: F) -> Result<Tensor>
+where
+    F: FnMut(&Tensor, f32) -> Result<Tensor>,
+{
+    if steps == 0 {
+        return Err(PolicyError::Invalid(
+            "euler_sample: steps must be at least 1 (the paper uses 2..50)".into(),
+        ));
+    }
+    let dt = 1.0 / steps as f64;
+    let mut a = a0;
+    for k in 0..steps {
+        let t = k as f32 / steps as f32;
+        let v = velocity(&a, t)?;
+        if v.dims() != a.dims() {
+            return Err(PolicyError::Invalid(format!(
+                "euler_sample: the velocity at step {k} has shape {:?}, expected the action's {:?}",
+                v.dims(),
+                a.dims()
+            )));
+        }
+        let step = v.to_dtype(a.dtype())?.affine(dt, 0.0)?;
+        a = (a + step)?;
+    }
+    Ok(a)
+}
+
+/// Axis-aligned workspace box in which keyframe positions are normalised to
+/// [-1, 1] per axis (metres, world frame).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Workspace {
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+}
+
+impl Workspace {
+    /// A box; every `max` must exceed its `min`.
+    pub fn new(min: [f32; 3], max: [f32; 3]) -> Result<Self> {
+        for axis in 0..3 {
+            if !(min[axis].is_finite() && max[axis].is_finite() && max[axis] > min[axis]) {
+                return Err(PolicyError::Invalid(format!(
+                    "workspace axis {axis}: need finite min < max, got [{}, {}]",
+                    min[axis], max[axis]
+                )));
+            }
+        }
+        Ok(Self { min, max })
+    }
+
+    /// World position (m) -> normalised position ([-1, 1] inside the box).
+    pub fn normalise(&self, position: [f32; 3]) -> [f32; 3] {
+        std::array::from_fn(|i| {
+            2.0 * (position[i] - self.min[i]) / (self.max[i] - self.min[i]) - 1.0
+        })
+    }
+
+    /// Normalised position -> world position (m).
+    pub fn denormalise(&self, normalised: [f32; 3]) -> [f32; 3] {
+        std::array::from_fn(|i| {
+            self.min[i] + (normalised[i] + 1.0) * 0.5 * (self.max[i] - self.min[i])
+        })
+    }
+}
+
+/// Row-major rotation matrix -> 6D rotation: its first two columns,
+/// `[r00, r10, r20, r01, r11, r21]`.
+pub fn rotation_to_6d(rotation: &[[f32; 3]; 3]) -> [f32; 6] {
+    [
+        rotation[0][0],
+        rotation[1][0],
+        rotation[2][0],
+        rotation[0][1],
+        rotation[1][1],
+        rotation[2][1],
+    ]
+}
+
+/// 6D rotation -> row-major rotation matrix by Gram–Schmidt (the network's
+/// output is generally not orthonormal): `c0 = normalise(a)`,
+/// `c1 = normalise(b - (c0·b) c0)`, `c2 = c0 × c1`.
+/// Fails when the two columns are (nearly) zero or parallel.
+pub fn rotation_from_6d(rotation_6d: &[f32; 6]) -> Result<[[f32; 3]; 3]> {
+    let a = [rotation_6d[0], rotation_6d[1], rotation_6d[2]];
+    let b = [rotation_6d[3], rotation_6d[4], rotation_6d[5]];
+    let dot = |u: [f32; 3], v: [f32; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
+    let norm_a = dot(a, a).sqrt();
+    if norm_a.is_nan() || norm_a <= 1e-6 {
+        return Err(PolicyError::Invalid(format!(
+            "6D rotation {rotation_6d:?}: first column has norm {norm_a}, cannot orthonormalise"
+        )));
+    }
+    let c0 = a.map(|x| x / norm_a);
+    let proj = dot(c0, b);
+    let b_perp = [
+        b[0] - proj * c0[0],
+        b[1] - proj * c0[1],
+        b[2] - proj * c0[2],
+    ];
+    let norm_b = dot(b_perp, b_perp).sqrt();
+    if norm_b.is_nan() || norm_b <= 1e-6 {
+        return Err(PolicyError::Invalid(format!(
+            "6D rotation {rotation_6d:?}: columns are parallel, cannot orthonormalise"
+        )));
+    }
+    let c1 = b_perp.map(|x| x / norm_b);
+    let c2 = [
+        c0[1] * c1[2] - c0[2] * c1[1],
+        c0[2] * c1[0] - c0[0] * c1[2],
+        c0[0] * c1[1] - c0[1] * c1[0],
+    ];
+    Ok([
+        [c0[0], c1[0], c2[0]],
+        [c0[1], c1[1], c2[1]],
+        [c0[2], c1[2], c2[2]],
+    ])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use candle_core::{Device, Var};
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+
+    fn t2(values: &[f32], rows: usize) -> Tensor {
+        Tensor::from_slice(values, (rows, values.len() / rows), &Device::Cpu).unwrap()
+    }
+
+    fn max_abs_diff(a: &Tensor, b: &Tensor) -> f32 {
+        (a - b)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .flatten_all()
+            .unwrap()
+            .max(0)
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap()
+    }
+
+    #[test]
+    fn interpolate_and_target_follow_the_straight_path() {
+        let a0 = t2(&[0.0, 1.0, 2.0, 4.0], 2);
+        let a1 = t2(&[2.0, 3.0, -2.0, 0.0], 2);
+        let t = Tensor::new(&[0.25f32, 1.0], &Device::Cpu).unwrap();
+        let a_t = interpolate(&a0, &a1, &t).unwrap();
+        assert_eq!(
+            a_t.to_vec2::<f32>().unwrap(),
+            vec![vec![0.5, 1.5], vec![-2.0, 0.0]]
+        );
+        let u = target_velocity(&a0, &a1).unwrap();
+        assert_eq!(
+            u.to_vec2::<f32>().unwrap(),
+            vec![vec![2.0, 2.0], vec![-4.0, -4.0]]
+        );
+        // t = 0 gives the noise.
+        let t0 = Tensor::zeros(2, DType::F32, &Device::Cpu).unwrap();
+        assert_eq!(max_abs_diff(&interpolate(&a0, &a1, &t0).unwrap(), &a0), 0.0);
+    }
+
+    #[test]
+    fn interpolate_rejects_wrong_time_shape() {
+        let a = t2(&[0.0; 18], 2);
+        let t = Tensor::zeros(3, DType::F32, &Device::Cpu).unwrap();
+        assert!(matches!(
+            interpolate(&a, &a, &t),
+            Err(PolicyError::Invalid(_))
+        ));
+    }
+
+    #[test]
+    fn training_sample_is_consistent_and_reproducible() {
+        let a1 = t2(&[0.3f32; 4 * ACTION_DIMS], 4);
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let s = flow_training_sample(&a1, &mut rng, FlowTimeSampling::Uniform).unwrap();
+        assert_eq!(s.a_t.dims(), &[4, ACTION_DIMS]);
+        assert_eq!(s.t.dims(), &[4]);
+        // a_t + (1 - t) * u == a1
+        let one_minus_t = s.t.affine(-1.0, 1.0).unwrap().reshape((4, 1)).unwrap();
+        let back = (&s.a_t + s.target_velocity.broadcast_mul(&one_minus_t).unwrap()).unwrap();
+        assert!(max_abs_diff(&back, &a1) < 1e-5);
+        let mut rng2 = ChaCha8Rng::seed_from_u64(7);
+        let s2 = flow_training_sample(&a1, &mut rng2, FlowTimeSampling::Uniform).unwrap();
+        assert_eq!(max_abs_diff(&s.a0, &s2.a0), 0.0);
+    }
+
+    #[test]
+    fn flow_times_lie_in_unit_interval_and_noise_is_standard() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        for sampling in [
+            FlowTimeSampling::Uniform,
+            FlowTimeSampling::LogitNormal {
+                mean: 0.0,
+                std: 1.0,
+            },
+        ] {
+            let t = sample_flow_times(&mut rng, 10_000, sampling).unwrap();
+            assert!(t.iter().all(|&x| (0.0..1.0).contains(&x)));
+            let mean = t.iter().map(|&x| x as f64).sum::<f64>() / t.len() as f64;
+            assert!((mean - 0.5).abs() < 0.02, "{sampling:?} mean {mean}");
+        }
+        let bad = FlowTimeSampling::LogitNormal {
+            mean: 0.0,
+            std: -1.0,
+        };
+        assert!(sample_flow_times(&mut rng, 1, bad).is_err());
+        let noise = sample_source_noise(&mut rng, 1000, ACTION_DIMS, &Device::Cpu).unwrap();
+        let v: Vec<f32> = noise.flatten_all().unwrap().to_vec1().unwrap();
+        let mean = v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
+        let var = v.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / v.len() as f64;
+        assert!(
+            mean.abs() < 0.05 && (var - 1.0).abs() < 0.05,
+            "mean {mean} var {var}"
+        );
+    }
+
+    #[test]
+    fn loss_matches_hand_computation() {
+        let v_pred = t2(&[1.0, 2.0, 3.0, 4.0], 2);
+        let target = t2(&[0.0, 2.0, 3.0, 6.0], 2);
+        let logit = Tensor::new(&[0.0f32, 2.0], &Device::Cpu).unwrap();
+        let label = Tensor::new(&[1.0f32, 0.0], &Device::Cpu).unwrap();
+        let (total, cfm, bce) =
+            flow_matching_loss(&v_pred, &target, &logit, &label, &LossWeights::default()).unwrap();
+        let cfm = cfm.to_scalar::<f32>().unwrap();
+        let bce = bce.to_scalar::<f32>().unwrap();
+        assert!((cfm - 5.0 / 4.0).abs() < 1e-6);
+        let expected_bce = ((2f64).ln() + (1.0 + 2f64.exp()).ln()) / 2.0;
+        assert!(
+            (bce as f64 - expected_bce).abs() < 1e-6,
+            "{bce} vs {expected_bce}"
+        );
+        let total = total.to_scalar::<f32>().unwrap();
+        assert!((total as f64 - (100.0 * 1.25 + 10.0 * expected_bce)).abs() < 1e-4);
+    }
+
+    #[test]
+    fn bce_is_stable_for_huge_logits_and_has_right_gradient() {
+        let logits = Var::new(&[1000.0f32, -1000.0, 0.5], &Device::Cpu).unwrap();
+        let labels = Tensor::new(&[0.0f32, 1.0, 1.0], &Device::Cpu).unwrap();
+        let bce = bce_with_logits(logits.as_tensor(), &labels).unwrap();
+        let value = bce.to_scalar::<f32>().unwrap();
+        let expected = (1000.0 + 1000.0 + (1.0 + (-0.5f64).exp()).ln()) / 3.0;
+        assert!(
+            value.is_finite() && ((value as f64) - expected).abs() < 1e-3,
+            "{value}"
+        );
+        // d/dx mean BCE = (sigmoid(x) - y) / N.
+        let grads = bce.backward().unwrap();
+        let g: Vec<f32> = grads.get(&logits).unwrap().to_vec1().unwrap();
+        let sig = 1.0 / (1.0 + (-0.5f32).exp());
+        let expected = [1.0 / 3.0, -1.0 / 3.0, (sig - 1.0) / 3.0];
+        for (a, b) in g.iter().zip(expected) {
+            assert!((a - b).abs() < 1e-6, "{g:?}");
+        }
+    }
+
+    #[test]
+    fn euler_lands_on_target_for_the_conditional_straight_field() {
+        let x1 = t2(&[0.5, -0.25, 0.9, 0.1, 0.0, -1.0, 0.3, 0.7, -0.6], 1);
+        let a0 = t2(&[1.2, 0.4, -2.0, 0.3, 1.1, -0.4, 0.0, 2.2, -1.3], 1);
+        for steps in [1usize, 2, 8, 32] {
+            let mut calls = Vec::new();
+            let out = euler_sample(a0.clone(), steps, |a, t| {
+                calls.push(t);
+                Ok(((&x1 - a)? / (1.0 - t as f64))?)
+            })
+            .unwrap();
+            assert!(max_abs_diff(&out, &x1) < 1e-5, "steps {steps}");
+            let expected: Vec<f32> = (0..steps).map(|k| k as f32 / steps as f32).collect();
+            assert_eq!(calls, expected);
+        }
+    }
+
+    #[test]
+    fn euler_with_constant_field_adds_it_once() {
+        let a0 = t2(&[1.0, 2.0, 3.0], 1);
+        let v = t2(&[0.5, -1.0, 4.0], 1);
+        for steps in [1usize, 3, 50] {
+            let out = euler_sample(a0.clone(), steps, |_, _| Ok(v.clone())).unwrap();
+            let expected = (&a0 + &v).unwrap();
+            assert!(max_abs_diff(&out, &expected) < 1e-5, "steps {steps}");
+        }
+    }
+
+    #[test]
+    fn euler_rejects_zero_steps_and_bad_velocity_shape() {
+        let a0 = t2(&[1.0, 2.0], 1);
+        assert!(matches!(
+            euler_sample(a0.clone(), 0, |a, _| Ok(a.clone())),
+            Err(PolicyError::Invalid(_))
+        ));
+        let r = euler_sample(a0, 2, |_, _| Ok(t2(&[1.0, 2.0, 3.0], 1)));
+        assert!(matches!(r, Err(PolicyError::Invalid(_))));
+    }
+
+    #[test]
+    fn rotation_6d_round_trips_and_orthonormalises() {
+        let (s, c) = (0.6f32, 0.8f32);
+        let r = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]];
+        let six = rotation_to_6d(&r);
+        assert_eq!(six, [c, s, 0.0, -s, c, 0.0]);
+        let back = rotation_from_6d(&six).unwrap();
+        for i in 0..3 {
+            for j in 0..3 {
+                assert!((back[i][j] - r[i][j]).abs() < 1e-6);
+            }
+        }
+        // Scaled, skewed columns come back orthonormal with det +1.
+        let m = rotation_from_6d(&[2.0, 0.0, 0.0, 1.0, 3.0, 0.0]).unwrap();
+        assert_eq!(m, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        assert!(rotation_from_6d(&[1.0, 0.0, 0.0, 2.0, 0.0, 0.0]).is_err());
+    }
+
+    #[test]
+    fn workspace_normalisation_round_trips() {
+        let ws = Workspace::new([-0.5, -0.5, 0.0], [0.5, 0.5, 1.0]).unwrap();
+        assert_eq!(ws.normalise([0.5, -0.5, 0.5]), [1.0, -1.0, 0.0]);
+        let p = [0.1, -0.2, 0.7];
+        let q = ws.denormalise(ws.normalise(p));
+        assert!(p.iter().zip(q).all(|(a, b)| (a - b).abs() < 1e-6));
+        assert!(Workspace::new([0.0; 3], [1.0, 0.0, 1.0]).is_err());
+    }
+}

@@ -1,0 +1,127 @@
+//! Inference: a trained FlowRAM (its EMA weights) turns an observation into keyframes by Euler
+//! integration of the learned velocity field (Algorithm 2, accumulating). The observation is
+//! encoded once (image features, the scan state after the language and semantic tokens); each
+//! Euler step re-samples the geometric tokens around the current action estimate (DRS) and runs
+//! only the suffix of the sequence. Several samples per observation run as one batch.
+use std::path::{Path, PathBuf};
+
+use candle_core::{DType, Tensor};
+use candle_nn::{VarBuilder, VarMap};
+use rand::SeedableRng;
+
+use super::checkpoint::{CheckpointStore, load_model_weights};
+use super::config::PolicyConfig;
+use super::error::{PolicyError, Result};
+use super::flow::sample_source_noise;
+use super::geometry::RadiusSchedule;
+use super::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
+use super::model::{ACTION_DIMS, EncodedObservation, FlowRam, device};
+use super::observation::{KeyframePose, Observation};
+use super::text::TextEncoder;
+use super::train::read_checkpoint_config;
+
+/// How to sample.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct SamplingOptions {
+    /// Euler steps.
+    pub steps: usize,
+    /// Action samples per observation.
+    pub samples: usize,
+    /// false: the w/o-DRS ablation (global geometric tokens at every step).
+    pub drs: bool,
+    /// Seed of the source noise a0.
+    pub seed: u64,
+}
+
+/// A model ready to predict.
+pub struct Policy {
+    pub model: FlowRam,
+    pub text: TextEncoder,
+    /// Where the weights came from (None: random initialisation).
+    pub checkpoint: Option<PathBuf>,
+}
+
+impl Policy {
+    /// Loads a checkpoint: a run folder (its latest checkpoint) or a checkpoint folder. Uses the
+    /// EMA weights.
+    pub fn load(path: &Path, text: TextEncoder) -> Result<Self> {
+        let dir = if path.join("trainer.json").exists() {
+            path.to_path_buf()
+        } else {
+            let root = if path.join("checkpoints").is_dir() { path.join("checkpoints") } else { path.to_path_buf() };
+            CheckpointStore::open(&root)?.latest()?.ok_or_else(|| PolicyError::File {
+                path: path.into(),
+                message: "no checkpoint here: expected a run folder (runs/NAME) or one of its checkpoints/step-* folders".into(),
+            })?
+        };
+        let config = read_checkpoint_config(&dir)?;
+        let varmap = VarMap::new();
+        let model = FlowRam::new(&config, VarBuilder::from_varmap(&varmap, DType::F32, &device()))?;
+        load_model_weights(&dir.join("ema.safetensors"), &varmap)?;
+        Ok(Self { model, text, checkpoint: Some(dir) })
+    }
+
+    /// A randomly initialised model (benchmarks).
+    pub fn random(config: &PolicyConfig, text: TextEncoder) -> Result<Self> {
+        let varmap = VarMap::new();
+        let model = FlowRam::new(config, super::init::seeded_var_builder(&varmap, config.train.seed, &device()))?;
+        Ok(Self { model, text, checkpoint: None })
+    }
+
+    pub fn config(&self) -> &PolicyConfig {
+        self.model.config()
+    }
+
+    /// Everything that depends only on the observation (not on the weights).
+    pub fn prepare(&mut self, observation: &Observation) -> Result<PreparedObservation> {
+        prepare(observation, self.model.config(), &mut self.text)
+    }
+
+    /// Encodes a prepared observation (image features and the prefix's scan state).
+    pub fn encode(&self, prepared: &PreparedObservation) -> Result<EncodedObservation> {
+        let prefix = prefix_inputs(self.model.config(), &[(prepared, Augmentation::NONE)])?;
+        self.model.encode(&prefix)
+    }
+
+    /// Samples keyframes for an encoded observation.
+    pub fn sample(&self, prepared: &PreparedObservation, encoded: &EncodedObservation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
+        let config = self.model.config();
+        if options.steps == 0 || options.samples == 0 {
+            return Err(PolicyError::Invalid(format!(
+                "sampling needs at least 1 Euler step and 1 sample; got {} steps, {} samples",
+                options.steps, options.samples
+            )));
+        }
+        let s = options.samples;
+        let encoded = encoded.repeat(s)?;
+        let schedule = if options.drs { config.radius_schedule } else { RadiusSchedule::Global };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
+        let mut a = sample_source_noise(&mut rng, s, ACTION_DIMS, &device())?;
+        let refs: Vec<(&PreparedObservation, Augmentation)> = vec![(prepared, Augmentation::NONE); s];
+        let shared = vec![0usize; s];
+        let mut open = Tensor::zeros(s, DType::F32, &device())?;
+        let dt = 1.0 / options.steps as f64;
+        for k in 0..options.steps {
+            let t = k as f32 / options.steps as f32;
+            let rows: Vec<[f32; 9]> = a.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
+            let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
+            let out = self.model.step(&encoded, &suffix)?;
+            a = (a + out.velocity.affine(dt, 0.0)?)?;
+            open = out.open_logit;
+        }
+        let rows = a.to_vec2::<f32>()?;
+        let open = open.to_vec1::<f32>()?;
+        Ok(rows
+            .iter()
+            .zip(open)
+            .map(|(r, o)| KeyframePose::from_action(&std::array::from_fn(|i| r[i]), o, &config.observation.workspace))
+            .collect())
+    }
+
+    /// Observation in, keyframes out.
+    pub fn predict(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
+        let prepared = self.prepare(observation)?;
+        let encoded = self.encode(&prepared)?;
+        self.sample(&prepared, &encoded, options)
+    }
+}

@@ -1,0 +1,155 @@
+//! From observations to the network's batched input tensors: images in CHW order, the lifted
+//! workspace cloud and its semantic tokens, the instruction's token features, proprioception;
+//! and per flow step the geometric tokens chosen by the radius schedule around the noisy action.
+//! Augmentation (training) shifts a sample's whole scene and scales its brightness.
+use candle_core::{DType, Tensor};
+
+use super::config::PolicyConfig;
+use super::error::{PolicyError, Result};
+use super::geometry::{RadiusSchedule, select_geometric_tokens};
+use super::model::{PrefixInputs, SuffixInputs, TEXT_WIDTH};
+use super::observation::{Observation, SceneCloud, lift_scene, proprio_features};
+use super::text::TextEncoder;
+
+/// An observation turned into what the network needs (everything that does not depend on the
+/// network's weights, computed once per observation).
+#[derive(Debug, Clone)]
+pub struct PreparedObservation {
+    /// u8 [cams, 3, H, W].
+    pub images: Vec<u8>,
+    pub cameras: usize,
+    pub cloud: SceneCloud,
+    pub proprio: [f32; 10],
+    /// [Lt, 384] instruction token features, zero-padded or truncated to Lt.
+    pub language: Tensor,
+}
+
+/// Per-sample augmentation: a shift of the scene (normalised workspace units, added to points,
+/// proprioception and action positions) and a brightness factor.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Augmentation {
+    pub shift: [f32; 3],
+    pub brightness: f32,
+}
+
+impl Augmentation {
+    pub const NONE: Augmentation = Augmentation { shift: [0.0; 3], brightness: 1.0 };
+}
+
+pub fn prepare(observation: &Observation, config: &PolicyConfig, text: &mut TextEncoder) -> Result<PreparedObservation> {
+    let o = &config.observation;
+    if observation.size != o.image_size {
+        return Err(PolicyError::Invalid(format!(
+            "the observation has {0}x{0} images; this policy was configured for {1}x{1} (observation.image_size)",
+            observation.size, o.image_size
+        )));
+    }
+    let (h, w) = (observation.size, observation.size);
+    let mut images = Vec::with_capacity(observation.cameras.len() * 3 * h * w);
+    for view in &observation.cameras {
+        for ch in 0..3 {
+            images.extend(view.rgb.iter().skip(ch).step_by(3).copied());
+        }
+    }
+    let cloud = lift_scene(observation, o.feature_stride, &o.workspace, o.semantic_tokens)?;
+    let proprio = proprio_features(&observation.proprio, &o.workspace)?;
+    let features = text.encode(&observation.instruction)?;
+    let tokens = features.tokens.to_dtype(DType::F32)?;
+    let t = tokens.dim(0)?.min(o.language_tokens);
+    let mut language = tokens.narrow(0, 0, t)?;
+    if t < o.language_tokens {
+        language = Tensor::cat(&[language, Tensor::zeros((o.language_tokens - t, TEXT_WIDTH), DType::F32, tokens.device())?], 0)?;
+    }
+    Ok(PreparedObservation { images, cameras: observation.cameras.len(), cloud, proprio, language })
+}
+
+fn shifted(p: [f32; 3], s: [f32; 3]) -> [f32; 3] {
+    [p[0] + s[0], p[1] + s[1], p[2] + s[2]]
+}
+
+/// The prefix inputs of a batch. All samples must have the same cameras and image size.
+pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Augmentation)]) -> Result<PrefixInputs> {
+    let b = samples.len();
+    let Some((first, _)) = samples.first() else { return Err(PolicyError::Invalid("an empty batch".into())) };
+    let o = &config.observation;
+    let size = o.image_size;
+    let cams = first.cameras;
+    let grid = size / o.feature_stride;
+    let cells_per_sample = cams * grid * grid;
+    let n1 = o.semantic_tokens;
+    let mut images = Vec::with_capacity(b * cams * 3 * size * size);
+    let mut cells = Vec::with_capacity(b * n1);
+    let mut xyz = Vec::with_capacity(b * n1 * 3);
+    let mut proprio = Vec::with_capacity(b * 10);
+    let mut language = Vec::with_capacity(b);
+    for (i, (s, aug)) in samples.iter().enumerate() {
+        if s.cameras != cams || s.images.len() != first.images.len() {
+            return Err(PolicyError::Invalid("every sample of a batch needs the same cameras and image size".into()));
+        }
+        if aug.brightness == 1.0 {
+            images.extend_from_slice(&s.images);
+        } else {
+            images.extend(s.images.iter().map(|&v| (f32::from(v) * aug.brightness).round().clamp(0.0, 255.0) as u8));
+        }
+        for &k in &s.cloud.semantic {
+            cells.push((i * cells_per_sample + s.cloud.cells[k]) as u32);
+            xyz.extend(shifted(s.cloud.points_norm[k], aug.shift));
+        }
+        let mut p = s.proprio;
+        for a in 0..3 {
+            p[a] += aug.shift[a];
+        }
+        proprio.extend(p);
+        language.push(s.language.clone());
+    }
+    let device = first.language.device();
+    Ok(PrefixInputs {
+        images: Tensor::from_vec(images, (b * cams, 3, size, size), device)?,
+        language: Tensor::stack(&language, 0)?,
+        semantic_cells: Tensor::from_vec(cells, b * n1, device)?,
+        semantic_xyz: Tensor::from_vec(xyz, (b, n1, 3), device)?,
+        proprio: Tensor::from_vec(proprio, (b, 10), device)?,
+    })
+}
+
+/// The inputs of one flow step: geometric tokens around each sample's noisy action position
+/// (`actions` [B, 9] rows, normalised), at flow times `t` (one per sample). `feature_sample[i]`
+/// says whose image features sample i uses (its own in training; 0 when several action
+/// samples share one encoded observation). `schedule` is the config's radius schedule, or
+/// `RadiusSchedule::Global` for the w/o-DRS ablation.
+pub fn suffix_inputs(
+    config: &PolicyConfig,
+    samples: &[(&PreparedObservation, Augmentation)],
+    feature_sample: &[usize],
+    actions: &[[f32; 9]],
+    t: &[f32],
+    schedule: &RadiusSchedule,
+) -> Result<SuffixInputs> {
+    let b = actions.len();
+    if samples.len() != b || feature_sample.len() != b || t.len() != b {
+        return Err(PolicyError::Invalid("suffix inputs: one sample, feature sample and time per action".into()));
+    }
+    let o = &config.observation;
+    let grid = o.image_size / o.feature_stride;
+    let n2 = o.geometric_tokens;
+    let mut cells = Vec::with_capacity(b * n2);
+    let mut xyz = Vec::with_capacity(b * n2 * 3);
+    for i in 0..b {
+        let (s, aug) = samples[i];
+        let cells_per_sample = s.cameras * grid * grid;
+        // The selection runs in the sample's own (unshifted) frame.
+        let center = [actions[i][0] - aug.shift[0], actions[i][1] - aug.shift[1], actions[i][2] - aug.shift[2]];
+        let selection = select_geometric_tokens(&s.cloud.points_norm, center, t[i].clamp(0.0, 1.0), n2, o.min_inside, schedule)?;
+        for &k in &selection.indices {
+            cells.push((feature_sample[i] * cells_per_sample + s.cloud.cells[k]) as u32);
+            xyz.extend(shifted(s.cloud.points_norm[k], aug.shift));
+        }
+    }
+    let device = candle_core::Device::Cpu;
+    Ok(SuffixInputs {
+        geometric_cells: Tensor::from_vec(cells, b * n2, &device)?,
+        geometric_xyz: Tensor::from_vec(xyz, (b, n2, 3), &device)?,
+        action: Tensor::from_vec(actions.iter().flatten().copied().collect::<Vec<f32>>(), (b, 9), &device)?,
+        t: Tensor::from_vec(t.to_vec(), b, &device)?,
+    })
+}

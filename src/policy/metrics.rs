@@ -1,0 +1,380 @@
+//! Training metrics on disk: `metrics.csv` (one row per logged step, header
+//! once, rows after the resumed step dropped on `--resume`) and a loss-curve
+//! PNG with a logarithmic loss axis, written atomically.
+
+use std::fs::{self, File, OpenOptions};
+use std::io::{BufRead, BufReader, Write};
+use std::path::{Path, PathBuf};
+
+use plotters::prelude::*;
+
+use crate::policy::checkpoint::{write_atomic, write_atomic_with};
+use crate::policy::error::{PolicyError, Result};
+
+/// The CSV header, in column order.
+pub const METRICS_HEADER: &str = "step,loss,cfm,bce,lr,seconds";
+
+/// One logged training step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MetricsRow {
+    /// Optimiser step (1-based).
+    pub step: u64,
+    /// Total weighted loss (`100 * cfm + 10 * bce` by default).
+    pub loss: f64,
+    /// Velocity MSE (L_CFM, unweighted).
+    pub cfm: f64,
+    /// Gripper-open BCE (L_open, unweighted).
+    pub bce: f64,
+    /// Learning rate used for the step.
+    pub lr: f64,
+    /// Wall-clock seconds of training up to this step (summed over resumes).
+    pub seconds: f64,
+}
+
+impl MetricsRow {
+    fn to_csv(self) -> String {
+        format!(
+            "{},{},{},{},{},{:.3}",
+            self.step, self.loss, self.cfm, self.bce, self.lr, self.seconds
+        )
+    }
+
+    fn parse(line: &str) -> std::result::Result<Self, String> {
+        let fields: Vec<&str> = line.trim().split(',').collect();
+        if fields.len() != 6 {
+            return Err(format!(
+                "expected 6 comma-separated fields ({METRICS_HEADER}), found {}",
+                fields.len()
+            ));
+        }
+        let num = |i: usize| -> std::result::Result<f64, String> {
+            fields[i]
+                .parse::<f64>()
+                .map_err(|e| format!("field {} '{}': {e}", i + 1, fields[i]))
+        };
+        Ok(MetricsRow {
+            step: fields[0]
+                .parse()
+                .map_err(|e| format!("step '{}': {e}", fields[0]))?,
+            loss: num(1)?,
+            cfm: num(2)?,
+            bce: num(3)?,
+            lr: num(4)?,
+            seconds: num(5)?,
+        })
+    }
+}
+
+/// Reads every row of a metrics CSV (the header is checked and skipped).
+pub fn read_metrics(path: &Path) -> Result<Vec<MetricsRow>> {
+    let file = File::open(path).map_err(|e| PolicyError::File {
+        path: path.to_path_buf(),
+        message: format!("cannot open: {e}"),
+    })?;
+    let mut rows = Vec::new();
+    for (i, line) in BufReader::new(file).lines().enumerate() {
+        let line = line.map_err(|e| PolicyError::File {
+            path: path.to_path_buf(),
+            message: format!("cannot read line {}: {e}", i + 1),
+        })?;
+        if i == 0 {
+            if line.trim() != METRICS_HEADER {
+                return Err(PolicyError::File {
+                    path: path.to_path_buf(),
+                    message: format!("header is '{}', expected '{METRICS_HEADER}'", line.trim()),
+                });
+            }
+            continue;
+        }
+        if line.trim().is_empty() {
+            continue;
+        }
+        rows.push(MetricsRow::parse(&line).map_err(|m| PolicyError::File {
+            path: path.to_path_buf(),
+            message: format!("line {}: {m}", i + 1),
+        })?);
+    }
+    Ok(rows)
+}
+
+/// Appends rows to `metrics.csv`, flushing each.
+pub struct MetricsLog {
+    path: PathBuf,
+    file: File,
+}
+
+impl MetricsLog {
+    /// Starts a fresh log at `path` (replacing any old one) with the header.
+    pub fn create(path: &Path) -> Result<Self> {
+        write_atomic(path, format!("{METRICS_HEADER}\n").as_bytes())?;
+        Self::open_append(path)
+    }
+
+    /// Continues the log of a run resumed after step `resumed_step`: keeps the
+    /// rows with `step <= resumed_step`, drops later ones (logged after the
+    /// checkpoint, they will be logged again), and appends from there. A
+    /// missing file starts a fresh log.
+    pub fn resume(path: &Path, resumed_step: u64) -> Result<Self> {
+        if !path.exists() {
+            return Self::create(path);
+        }
+        let kept: Vec<MetricsRow> = read_metrics(path)?
+            .into_iter()
+            .filter(|r| r.step <= resumed_step)
+            .collect();
+        let mut text = format!("{METRICS_HEADER}\n");
+        for row in kept {
+            text.push_str(&row.to_csv());
+            text.push('\n');
+        }
+        write_atomic(path, text.as_bytes())?;
+        Self::open_append(path)
+    }
+
+    fn open_append(path: &Path) -> Result<Self> {
+        let file = OpenOptions::new()
+            .append(true)
+            .open(path)
+            .map_err(|e| PolicyError::File {
+                path: path.to_path_buf(),
+                message: format!("cannot open for appending: {e}"),
+            })?;
+        Ok(Self {
+            path: path.to_path_buf(),
+            file,
+        })
+    }
+
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Appends one row and flushes it to the OS.
+    pub fn append(&mut self, row: &MetricsRow) -> Result<()> {
+        writeln!(self.file, "{}", row.to_csv())
+            .and_then(|_| self.file.flush())
+            .map_err(|e| PolicyError::File {
+                path: self.path.clone(),
+                message: format!("cannot append: {e}"),
+            })
+    }
+}
+
+/// Draws the loss curve (total loss, L_CFM and L_open against step, log-scale
+/// y) to a PNG of `width` x `height` pixels at `path`, atomically. Rows with
+/// non-positive or non-finite values are left out of their series. When no
+/// font can be loaded the plot is drawn without text rather than failing.
+pub fn plot_loss_curve(rows: &[MetricsRow], path: &Path, width: u32, height: u32) -> Result<()> {
+    if rows.is_empty() {
+        return Err(PolicyError::Invalid(
+            "plot_loss_curve: no metrics rows to plot".into(),
+        ));
+    }
+    if width < 64 || height < 64 {
+        return Err(PolicyError::Invalid(format!(
+            "plot_loss_curve: {width}x{height} px is too small (at least 64x64)"
+        )));
+    }
+    let file_error = |m: String| PolicyError::File {
+        path: path.to_path_buf(),
+        message: m,
+    };
+    let with_text = write_atomic_with(path, |tmp| draw_loss_curve(rows, tmp, width, height, true));
+    match with_text {
+        Ok(()) => Ok(()),
+        Err(first) => {
+            write_atomic_with(path, |tmp| draw_loss_curve(rows, tmp, width, height, false)).map_err(
+                |second| {
+                    file_error(format!(
+                        "cannot draw the loss curve: {first}; without text: {second}"
+                    ))
+                },
+            )
+        }
+    }
+}
+
+fn draw_loss_curve(
+    rows: &[MetricsRow],
+    path: &Path,
+    width: u32,
+    height: u32,
+    text: bool,
+) -> Result<()> {
+    let plot_error = |e: String| PolicyError::File {
+        path: path.to_path_buf(),
+        message: e,
+    };
+    type Series = (&'static str, RGBColor, fn(&MetricsRow) -> f64);
+    let series: [Series; 3] = [
+        ("loss (total)", RGBColor(31, 119, 180), |r| r.loss),
+        ("L_CFM", RGBColor(214, 39, 40), |r| r.cfm),
+        ("L_open", RGBColor(44, 160, 44), |r| r.bce),
+    ];
+    let positive = |v: f64| v.is_finite() && v > 0.0;
+    let values = rows
+        .iter()
+        .flat_map(|r| series.iter().map(move |(_, _, f)| f(r)))
+        .filter(|&v| positive(v));
+    let (mut y_min, mut y_max) = values.fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    });
+    if !y_min.is_finite() {
+        (y_min, y_max) = (1e-3, 1.0);
+    }
+    let (y_min, y_max) = (y_min * 0.8, y_max * 1.25);
+    let x_min = rows.iter().map(|r| r.step).min().unwrap_or(0);
+    let x_max = rows
+        .iter()
+        .map(|r| r.step)
+        .max()
+        .unwrap_or(1)
+        .max(x_min + 1);
+
+    let root = BitMapBackend::new(path, (width, height)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| plot_error(e.to_string()))?;
+    let mut builder = ChartBuilder::on(&root);
+    builder.margin(12);
+    if text {
+        builder
+            .caption("FlowRAM training loss", ("sans-serif", 20))
+            .x_label_area_size(36)
+            .y_label_area_size(64);
+    }
+    let mut chart = builder
+        .build_cartesian_2d(x_min..x_max, (y_min..y_max).log_scale())
+        .map_err(|e| plot_error(e.to_string()))?;
+    let mut mesh = chart.configure_mesh();
+    if text {
+        mesh.x_desc("step").y_desc("loss (log)");
+    } else {
+        mesh.disable_x_axis().disable_y_axis();
+    }
+    mesh.draw().map_err(|e| plot_error(e.to_string()))?;
+    for (label, color, value) in series {
+        let points: Vec<(u64, f64)> = rows
+            .iter()
+            .map(|r| (r.step, value(r)))
+            .filter(|&(_, v)| positive(v))
+            .collect();
+        let drawn = chart
+            .draw_series(LineSeries::new(points, color.stroke_width(2)))
+            .map_err(|e| plot_error(e.to_string()))?;
+        if text {
+            drawn.label(label).legend(move |(x, y)| {
+                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
+            });
+        }
+    }
+    if text {
+        chart
+            .configure_series_labels()
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()
+            .map_err(|e| plot_error(e.to_string()))?;
+    }
+    root.present().map_err(|e| plot_error(e.to_string()))?;
+    drop(chart);
+    drop(root);
+    // The backend writes on present(); make sure the file exists.
+    if !fs::metadata(path).map(|m| m.len() > 0).unwrap_or(false) {
+        return Err(plot_error("the PNG backend wrote nothing".into()));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tmp_dir(tag: &str) -> PathBuf {
+        let p =
+            std::env::temp_dir().join(format!("policy_train_metrics_{tag}_{}", std::process::id()));
+        let _ = fs::remove_dir_all(&p);
+        fs::create_dir_all(&p).unwrap();
+        p
+    }
+
+    fn row(step: u64) -> MetricsRow {
+        let loss = 10.0 / step as f64;
+        MetricsRow {
+            step,
+            loss,
+            cfm: loss * 0.008,
+            bce: loss * 0.02,
+            lr: 1e-4,
+            seconds: step as f64 * 0.5,
+        }
+    }
+
+    #[test]
+    fn csv_resume_drops_rows_after_the_checkpoint() {
+        let dir = tmp_dir("csv");
+        let path = dir.join("metrics.csv");
+        let mut log = MetricsLog::create(&path).unwrap();
+        for s in 1..=10 {
+            log.append(&row(s)).unwrap();
+        }
+        drop(log);
+        // Crash after step 10; the last checkpoint was at step 6.
+        let mut log = MetricsLog::resume(&path, 6).unwrap();
+        for s in 7..=8 {
+            log.append(&row(s)).unwrap();
+        }
+        drop(log);
+        let rows = read_metrics(&path).unwrap();
+        let steps: Vec<u64> = rows.iter().map(|r| r.step).collect();
+        assert_eq!(steps, (1..=8).collect::<Vec<_>>());
+        assert_eq!(rows[3], row(4));
+        let text = fs::read_to_string(&path).unwrap();
+        assert_eq!(
+            text.matches(METRICS_HEADER).count(),
+            1,
+            "header once:\n{text}"
+        );
+        // A fresh create starts over; resume on a missing file creates it.
+        MetricsLog::create(&path).unwrap();
+        assert!(read_metrics(&path).unwrap().is_empty());
+        let other = dir.join("new.csv");
+        MetricsLog::resume(&other, 5).unwrap();
+        assert!(read_metrics(&other).unwrap().is_empty());
+        fs::write(&other, "step,loss\n1,2\n").unwrap();
+        assert!(matches!(
+            read_metrics(&other),
+            Err(PolicyError::File { .. })
+        ));
+        fs::remove_dir_all(&dir).ok();
+    }
+
+    #[test]
+    fn loss_curve_png_is_written_and_decodable() {
+        let dir = tmp_dir("png");
+        let path = dir.join("loss.png");
+        let mut rows: Vec<MetricsRow> = (1..=200).map(row).collect();
+        rows[5].bce = 0.0; // left out of the log plot, not an error
+        plot_loss_curve(&rows, &path, 640, 400).unwrap();
+        let decoder = png::Decoder::new(File::open(&path).unwrap());
+        let mut reader = decoder.read_info().unwrap();
+        let mut buf = vec![0; reader.output_buffer_size()];
+        let info = reader.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width, info.height), (640, 400));
+        // Not blank: some pixels are neither white nor grey (the curves).
+        let colored = buf[..info.buffer_size()]
+            .chunks(info.color_type.samples())
+            .filter(|p| p.len() >= 3 && (p[0] as i32 - p[1] as i32).abs() > 60)
+            .count();
+        assert!(colored > 100, "only {colored} coloured pixels");
+        let names: Vec<String> = fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
+        assert_eq!(
+            names,
+            vec!["loss.png".to_string()],
+            "no temporary files left"
+        );
+        assert!(plot_loss_curve(&[], &path, 640, 400).is_err());
+        fs::remove_dir_all(&dir).ok();
+    }
+}

@@ -1,0 +1,288 @@
+//! The FlowRAM network: tokens of the observation, region-aware Mamba, flow-matching heads.
+//!
+//! Token sequence, in scan order (causal, so the tokens that read out the action come last and
+//! see everything before them; the code release put the action first, a defect):
+//!
+//! ```text
+//! [ language (Lt) | semantic (N1) ] [ geometric (N2) | action (1) ]
+//!   prefix: depends on the observation   suffix: depends on the flow step (a_t, t)
+//! ```
+//!
+//! - language: the instruction's MiniLM token features (384) projected to C;
+//! - semantic: image-encoder features at the N1 farthest-point-sampled workspace points, plus a
+//!   3D positional encoding of their (normalised) positions;
+//! - geometric: features at N2 points sampled around the noisy action position with the
+//!   radius schedule r(t) (DRS), plus the encodings of their position and of their offset from
+//!   the action position;
+//! - action: the noisy action a_t (normalised position + 6D rotation) projected to C, plus the
+//!   encoding of its position.
+//!
+//! Every Mamba block is modulated (AdaLN) by a condition: the prefix by the proprioception's
+//! embedding alone, the suffix by that plus an embedding of the flow time t. The prefix thus
+//! depends only on the observation: inference runs it once and caches the scan state, then runs
+//! only the suffix at each Euler step. Heads on the last (action) token: velocity of the
+//! position (3) and of the rotation (6), and the gripper-open logit.
+use candle_core::{D, DType, Device, Tensor};
+use candle_nn::{Linear, Module, VarBuilder};
+
+use super::config::PolicyConfig;
+use super::error::{PolicyError, Result};
+use super::geometry::positional_encoding;
+use super::image_encoder::{ImageEncoder, ImageEncoderConfig};
+use super::mamba::{Conditioning, MambaConfig, MambaStack, StackState};
+
+/// Width of the frozen text encoder's token features (all-MiniLM-L6-v2).
+pub const TEXT_WIDTH: usize = 384;
+/// Flowed action dimensions: normalised position (3) + 6D rotation (6).
+pub const ACTION_DIMS: usize = 9;
+/// Proprioception features: normalised position, 6D rotation, gripper open.
+pub const PROPRIO_DIMS: usize = 10;
+
+const LANGUAGE: usize = 0;
+const SEMANTIC: usize = 1;
+const GEOMETRIC: usize = 2;
+const ACTION: usize = 3;
+
+/// A two-layer MLP with SiLU.
+#[derive(Debug, Clone)]
+struct Mlp {
+    a: Linear,
+    b: Linear,
+}
+
+impl Mlp {
+    fn new(input: usize, hidden: usize, output: usize, vb: VarBuilder) -> Result<Self> {
+        Ok(Self { a: candle_nn::linear(input, hidden, vb.pp("0"))?, b: candle_nn::linear(hidden, output, vb.pp("1"))? })
+    }
+
+    fn forward(&self, x: &Tensor) -> Result<Tensor> {
+        Ok(self.b.forward(&candle_nn::ops::silu(&self.a.forward(x)?)?)?)
+    }
+}
+
+/// Batched inputs of the observation side (prefix), on the CPU.
+#[derive(Debug, Clone)]
+pub struct PrefixInputs {
+    /// u8 [B * cams, 3, H, W].
+    pub images: Tensor,
+    /// [B, Lt, 384] instruction token features (zero-padded).
+    pub language: Tensor,
+    /// u32 [B * N1]: feature pixel of each semantic token, `b * cells_per_sample + cell`.
+    pub semantic_cells: Tensor,
+    /// [B, N1, 3] normalised positions.
+    pub semantic_xyz: Tensor,
+    /// [B, 10] proprioception features.
+    pub proprio: Tensor,
+}
+
+/// Batched inputs of one flow step (suffix).
+#[derive(Debug, Clone)]
+pub struct SuffixInputs {
+    /// u32 [B * N2]: feature pixel of each geometric token (as `semantic_cells`).
+    pub geometric_cells: Tensor,
+    /// [B, N2, 3] normalised positions.
+    pub geometric_xyz: Tensor,
+    /// [B, 9] the noisy action a_t.
+    pub action: Tensor,
+    /// [B] flow time.
+    pub t: Tensor,
+}
+
+/// What inference keeps of the observation between Euler steps.
+#[derive(Debug, Clone)]
+pub struct EncodedObservation {
+    /// Image features of every feature pixel: [B * cells_per_sample, C].
+    pub features: Tensor,
+    /// The scan state after the prefix.
+    pub state: StackState,
+    /// The prefix condition [B, C].
+    pub condition: Tensor,
+}
+
+impl EncodedObservation {
+    /// The encoding of one observation repeated for `n` action samples (the image features are
+    /// shared: geometric tokens of every sample index the first sample's features).
+    pub fn repeat(&self, n: usize) -> Result<Self> {
+        if self.condition.dim(0)? != 1 {
+            return Err(PolicyError::Invalid("only the encoding of a single observation can be repeated".into()));
+        }
+        if n == 1 {
+            return Ok(self.clone());
+        }
+        Ok(Self { features: self.features.clone(), state: self.state.repeat(n)?, condition: self.condition.repeat((n, 1))? })
+    }
+}
+
+/// Network output for one flow step.
+#[derive(Debug, Clone)]
+pub struct Velocity {
+    /// [B, 9]
+    pub velocity: Tensor,
+    /// [B]
+    pub open_logit: Tensor,
+}
+
+/// The FlowRAM network. Weights live in the `VarBuilder`'s storage (a `VarMap` for training).
+#[derive(Debug, Clone)]
+pub struct FlowRam {
+    config: PolicyConfig,
+    image_encoder: ImageEncoder,
+    language_proj: Linear,
+    action_in: Linear,
+    /// [4, C]: language, semantic, geometric, action.
+    token_types: Tensor,
+    proprio_mlp: Mlp,
+    time_mlp: Mlp,
+    mamba: MambaStack,
+    position_head: Mlp,
+    rotation_head: Mlp,
+    open_head: Mlp,
+}
+
+impl FlowRam {
+    pub fn new(config: &PolicyConfig, vb: VarBuilder) -> Result<Self> {
+        config.validate()?;
+        let c = config.model.channels;
+        let o = &config.observation;
+        let encoder_config = ImageEncoderConfig {
+            image_size: o.image_size,
+            patch_size: o.feature_stride,
+            out_channels: c,
+            ..ImageEncoderConfig::default()
+        };
+        let mamba_config = MambaConfig {
+            d_model: c,
+            d_state: config.model.d_state,
+            d_conv: config.model.d_conv,
+            expand: config.model.expand,
+            n_layers: config.model.layers,
+            ..MambaConfig::default()
+        };
+        Ok(Self {
+            config: config.clone(),
+            image_encoder: ImageEncoder::new(encoder_config, vb.pp("image_encoder"))?,
+            language_proj: candle_nn::linear(TEXT_WIDTH, c, vb.pp("language_proj"))?,
+            action_in: candle_nn::linear(ACTION_DIMS, c, vb.pp("action_in"))?,
+            token_types: vb.get_with_hints((4, c), "token_types", candle_nn::Init::Randn { mean: 0.0, stdev: 0.02 })?,
+            proprio_mlp: Mlp::new(PROPRIO_DIMS, c, c, vb.pp("proprio_mlp"))?,
+            time_mlp: Mlp::new(c, c, c, vb.pp("time_mlp"))?,
+            mamba: MambaStack::new(&mamba_config, vb.pp("mamba"))?,
+            position_head: Mlp::new(c, c, 3, vb.pp("position_head"))?,
+            rotation_head: Mlp::new(c, c, 6, vb.pp("rotation_head"))?,
+            open_head: Mlp::new(c, c, 1, vb.pp("open_head"))?,
+        })
+    }
+
+    pub fn config(&self) -> &PolicyConfig {
+        &self.config
+    }
+
+    /// Feature pixels per sample: cameras x (size / stride)^2.
+    pub fn cells_per_camera(&self) -> usize {
+        let g = self.config.observation.image_size / self.config.observation.feature_stride;
+        g * g
+    }
+
+    /// Image features of every feature pixel, [B * cams * cells, C] (row order: sample, camera,
+    /// row, column).
+    pub fn image_features(&self, images: &Tensor) -> Result<Tensor> {
+        let f = self.image_encoder.forward_channels_last(images)?;
+        let (n, h, w, c) = f.dims4()?;
+        Ok(f.reshape((n * h * w, c))?)
+    }
+
+    fn type_embedding(&self, which: usize) -> Result<Tensor> {
+        Ok(self.token_types.narrow(0, which, 1)?)
+    }
+
+    fn gather(features: &Tensor, cells: &Tensor, batch: usize) -> Result<Tensor> {
+        let g = features.index_select(cells, 0)?;
+        let (n, c) = g.dims2()?;
+        Ok(g.reshape((batch, n / batch, c))?)
+    }
+
+    /// Prefix tokens [B, Lt + N1, C] and the prefix condition [B, C].
+    fn prefix_tokens(&self, features: &Tensor, inputs: &PrefixInputs) -> Result<(Tensor, Tensor)> {
+        let c = self.config.model.channels;
+        let b = inputs.proprio.dim(0)?;
+        let language = self.language_proj.forward(&inputs.language)?.broadcast_add(&self.type_embedding(LANGUAGE)?)?;
+        let semantic = Self::gather(features, &inputs.semantic_cells, b)?
+            .add(&positional_encoding(&inputs.semantic_xyz, c)?)?
+            .broadcast_add(&self.type_embedding(SEMANTIC)?)?;
+        let tokens = Tensor::cat(&[language, semantic], 1)?;
+        let condition = self.proprio_mlp.forward(&inputs.proprio)?;
+        Ok((tokens, condition))
+    }
+
+    /// Suffix tokens [B, N2 + 1, C] and the suffix condition [B, C].
+    fn suffix_tokens(&self, features: &Tensor, prefix_condition: &Tensor, inputs: &SuffixInputs) -> Result<(Tensor, Tensor)> {
+        let c = self.config.model.channels;
+        let b = inputs.action.dim(0)?;
+        let position = inputs.action.narrow(1, 0, 3)?;
+        let offset = inputs.geometric_xyz.broadcast_sub(&position.unsqueeze(1)?)?;
+        let geometric = Self::gather(features, &inputs.geometric_cells, b)?
+            .add(&positional_encoding(&inputs.geometric_xyz, c)?)?
+            .add(&positional_encoding(&offset, c)?)?
+            .broadcast_add(&self.type_embedding(GEOMETRIC)?)?;
+        let action = self
+            .action_in
+            .forward(&inputs.action)?
+            .add(&positional_encoding(&position.clamp(-1.5f32, 1.5f32)?, c)?)?
+            .broadcast_add(&self.type_embedding(ACTION)?)?
+            .unsqueeze(1)?;
+        let tokens = Tensor::cat(&[geometric, action], 1)?;
+        let condition = prefix_condition.add(&self.time_mlp.forward(&time_embedding(&inputs.t, c)?)?)?;
+        Ok((tokens, condition))
+    }
+
+    fn heads(&self, last: &Tensor) -> Result<Velocity> {
+        let velocity = Tensor::cat(&[self.position_head.forward(last)?, self.rotation_head.forward(last)?], 1)?;
+        let open_logit = self.open_head.forward(last)?.squeeze(1)?;
+        Ok(Velocity { velocity, open_logit })
+    }
+
+    /// Training forward, differentiable: the whole sequence in one pass.
+    pub fn forward(&self, prefix: &PrefixInputs, suffix: &SuffixInputs) -> Result<Velocity> {
+        let features = self.image_features(&prefix.images)?;
+        let (p_tokens, p_cond) = self.prefix_tokens(&features, prefix)?;
+        let (s_tokens, s_cond) = self.suffix_tokens(&features, &p_cond, suffix)?;
+        let (lp, ls) = (p_tokens.dim(1)?, s_tokens.dim(1)?);
+        let x = Tensor::cat(&[p_tokens, s_tokens], 1)?;
+        let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
+        self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?)
+    }
+
+    /// Inference: encodes the observation once (image features, prefix scan state).
+    pub fn encode(&self, prefix: &PrefixInputs) -> Result<EncodedObservation> {
+        let features = self.image_features(&prefix.images)?.detach();
+        let (tokens, condition) = self.prefix_tokens(&features, prefix)?;
+        let (_, state) = self.mamba.forward_cached(&tokens, &Conditioning::Shared(condition.clone()), None)?;
+        Ok(EncodedObservation { features, state, condition })
+    }
+
+    /// Inference: one flow step from the cached prefix.
+    pub fn step(&self, encoded: &EncodedObservation, suffix: &SuffixInputs) -> Result<Velocity> {
+        let (tokens, condition) = self.suffix_tokens(&encoded.features, &encoded.condition, suffix)?;
+        let l = tokens.dim(1)?;
+        let (h, _) = self.mamba.forward_cached(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
+        self.heads(&h.narrow(1, l - 1, 1)?.squeeze(1)?)
+    }
+}
+
+/// Sinusoidal embedding of the flow time t in [0, 1] (as DiT, with t scaled by 1000):
+/// [B] -> [B, C], half sines, half cosines, periods from 2 pi / 1000 to 2 pi * 10.
+pub fn time_embedding(t: &Tensor, channels: usize) -> Result<Tensor> {
+    if channels % 2 != 0 {
+        return Err(PolicyError::Invalid(format!("time embedding needs an even width, got {channels}")));
+    }
+    let half = channels / 2;
+    let freqs: Vec<f32> = (0..half).map(|k| (-(10_000f32.ln()) * k as f32 / half as f32).exp()).collect();
+    let freqs = Tensor::from_vec(freqs, (1, half), t.device())?;
+    let angles = t.to_dtype(DType::F32)?.affine(1000.0, 0.0)?.unsqueeze(1)?.broadcast_mul(&freqs)?;
+    Ok(Tensor::cat(&[angles.sin()?, angles.cos()?], D::Minus1)?)
+}
+
+/// The CPU device the policy runs on.
+pub fn device() -> Device {
+    Device::Cpu
+}

@@ -1,0 +1,156 @@
+//! What the policy sees and predicts, independent of the simulator: camera views (RGB-D with
+//! intrinsics and extrinsics), proprioception and the instruction in; a keyframe (position,
+//! rotation, gripper open) out. Also the lifting of an observation to the workspace point set
+//! that semantic and geometric tokens are drawn from, and the action vector the flow runs on.
+use serde::Serialize;
+
+use super::error::{PolicyError, Result};
+use super::geometry::{self, WorkspaceBounds};
+use crate::data::Episode;
+
+/// One camera's images and calibration.
+#[derive(Debug, Clone)]
+pub struct CameraView {
+    /// Row-major H x W x 3 RGB.
+    pub rgb: Vec<u8>,
+    /// Row-major H x W z-depth in metres (0 = nothing).
+    pub depth: Vec<f32>,
+    /// Pinhole K (pixels, pixel centres at integer coordinates), row-major.
+    pub intrinsics: [[f32; 3]; 3],
+    /// Camera-to-world (OpenCV camera axes: x right, y down, z forward), row-major.
+    pub camera_to_world: [[f32; 4]; 4],
+}
+
+/// The policy's input at one keyframe.
+#[derive(Debug, Clone)]
+pub struct Observation {
+    /// Square images of `size` pixels, one view per camera (in a fixed camera order).
+    pub size: usize,
+    pub cameras: Vec<CameraView>,
+    /// TCP position (world, m), quaternion w, x, y, z, gripper open (1/0).
+    pub proprio: [f32; 8],
+    pub instruction: String,
+}
+
+/// A keyframe: what the policy predicts and what the control stack executes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+pub struct KeyframePose {
+    /// TCP position, world frame, metres.
+    pub position: [f32; 3],
+    /// TCP orientation, unit quaternion w, x, y, z (w >= 0), world frame.
+    pub quat_wxyz: [f32; 4],
+    pub gripper_open: bool,
+}
+
+impl KeyframePose {
+    /// From the dataset layout (position, quat wxyz, open).
+    pub fn from_proprio(v: &[f32; 8]) -> Self {
+        Self { position: [v[0], v[1], v[2]], quat_wxyz: [v[3], v[4], v[5], v[6]], gripper_open: v[7] > 0.5 }
+    }
+
+    /// The 9 continuous action dimensions the flow runs on: position normalised to the
+    /// workspace ([-1, 1] per axis), then the 6D rotation (the rotation matrix's first two
+    /// columns).
+    pub fn to_action(&self, workspace: &WorkspaceBounds) -> Result<[f32; 9]> {
+        let p = workspace.normalize(self.position);
+        let r = geometry::quaternion_to_6d(self.quat_wxyz)?;
+        Ok([p[0], p[1], p[2], r[0], r[1], r[2], r[3], r[4], r[5]])
+    }
+
+    /// Back from the action vector (rotation re-orthonormalised by Gram-Schmidt) and the
+    /// gripper-open logit.
+    pub fn from_action(a: &[f32; 9], open_logit: f32, workspace: &WorkspaceBounds) -> Self {
+        let position = workspace.denormalize([a[0], a[1], a[2]]);
+        let quat_wxyz = geometry::quaternion_from_6d([a[3], a[4], a[5], a[6], a[7], a[8]]);
+        Self { position, quat_wxyz, gripper_open: open_logit > 0.0 }
+    }
+
+    /// Position error (m) and rotation error (rad) to another keyframe.
+    pub fn error_to(&self, other: &KeyframePose) -> (f32, f32) {
+        let d: f32 = (0..3).map(|i| (self.position[i] - other.position[i]).powi(2)).sum::<f32>().sqrt();
+        let dot: f32 = (0..4).map(|i| self.quat_wxyz[i] * other.quat_wxyz[i]).sum::<f32>().abs().min(1.0);
+        (d, 2.0 * dot.acos())
+    }
+}
+
+/// Proprioception as network input: normalised position, 6D rotation, gripper open (10 values).
+pub fn proprio_features(proprio: &[f32; 8], workspace: &WorkspaceBounds) -> Result<[f32; 10]> {
+    let a = KeyframePose::from_proprio(proprio).to_action(workspace)?;
+    let mut f = [0.0; 10];
+    f[..9].copy_from_slice(&a);
+    f[9] = proprio[7];
+    Ok(f)
+}
+
+impl Observation {
+    /// Keyframe `k` of a dataset episode (all its cameras, in the episode's order).
+    pub fn from_episode(episode: &Episode, k: usize) -> Result<Self> {
+        let keyframes = episode.keyframes();
+        if k >= keyframes {
+            return Err(PolicyError::Invalid(format!(
+                "keyframe {k} does not exist: the episode has keyframes 0..{}",
+                keyframes.saturating_sub(1)
+            )));
+        }
+        if episode.height != episode.width {
+            return Err(PolicyError::Invalid(format!("the policy needs square images; the episode has {}x{}", episode.height, episode.width)));
+        }
+        let (h, w, cams) = (episode.height, episode.width, episode.cameras.len());
+        let mut cameras = Vec::with_capacity(cams);
+        for c in 0..cams {
+            let image = k * cams + c;
+            let k9 = &episode.intrinsics[c * 9..c * 9 + 9];
+            let e16 = &episode.extrinsics[image * 16..image * 16 + 16];
+            cameras.push(CameraView {
+                rgb: episode.rgb[image * h * w * 3..(image + 1) * h * w * 3].to_vec(),
+                depth: episode.depth[image * h * w..(image + 1) * h * w].to_vec(),
+                intrinsics: std::array::from_fn(|r| std::array::from_fn(|col| k9[r * 3 + col])),
+                camera_to_world: std::array::from_fn(|r| std::array::from_fn(|col| e16[r * 4 + col])),
+            });
+        }
+        let proprio: [f32; 8] = std::array::from_fn(|i| episode.proprio[k * 8 + i]);
+        Ok(Self { size: h, cameras, proprio, instruction: episode.instruction.clone() })
+    }
+
+    /// The recorded expert action at keyframe `k` of an episode.
+    pub fn episode_action(episode: &Episode, k: usize) -> KeyframePose {
+        KeyframePose::from_proprio(&std::array::from_fn(|i| episode.action[k * 8 + i]))
+    }
+}
+
+/// The lifted feature pixels of an observation that lie in the workspace.
+#[derive(Debug, Clone, Default)]
+pub struct SceneCloud {
+    /// Normalised workspace coordinates ([-1, 1]^3).
+    pub points_norm: Vec<[f32; 3]>,
+    /// For each point, its feature pixel: `camera * cells_per_camera + row * grid + col`.
+    pub cells: Vec<usize>,
+    /// N1 indices into `points_norm`: the semantic tokens (farthest point sampling; repeated
+    /// cyclically when the cloud has fewer points).
+    pub semantic: Vec<usize>,
+}
+
+/// Lifts every feature pixel (stride `stride`) of every camera to the world, keeps those in the
+/// workspace and picks the N1 semantic tokens. Errors when no pixel lies in the workspace.
+pub fn lift_scene(observation: &Observation, stride: usize, workspace: &WorkspaceBounds, n1: usize) -> Result<SceneCloud> {
+    let grid = observation.size / stride.max(1);
+    let per_camera = grid * grid;
+    let mut cloud = SceneCloud::default();
+    for (c, view) in observation.cameras.iter().enumerate() {
+        let lifted = geometry::lift_depth(&view.depth, observation.size, observation.size, &view.intrinsics, &view.camera_to_world, stride)?;
+        let cropped = workspace.crop_and_normalize(&lifted);
+        cloud.points_norm.extend_from_slice(&cropped.points_norm);
+        cloud.cells.extend(cropped.cells.iter().map(|&cell| c * per_camera + cell));
+    }
+    if cloud.points_norm.is_empty() {
+        return Err(PolicyError::Invalid(
+            "no depth pixel of the observation lies in the policy's workspace: check the cameras and observation.workspace".into(),
+        ));
+    }
+    cloud.semantic = if cloud.points_norm.len() >= n1 {
+        geometry::farthest_point_sample(&cloud.points_norm, n1, 0)?
+    } else {
+        (0..cloud.points_norm.len()).cycle().take(n1).collect()
+    };
+    Ok(cloud)
+}

@@ -1,0 +1,155 @@
+//! The FlowRAM policy end to end on real demonstrations (rendered by the real simulator): it can
+//! overfit a handful of keyframes, checkpoints round-trip, bad checkpoints are named.
+use std::sync::OnceLock;
+
+use flowram::data::Episode;
+use flowram::deps::Deps;
+use flowram::policy::config::PolicyConfig;
+use flowram::policy::inference::{Policy, SamplingOptions};
+use flowram::policy::observation::Observation;
+use flowram::policy::text::TextEncoder;
+use flowram::policy::train::{StepLoss, TrainProgress, Trainer, TrainingData, train};
+use flowram::sim::{CameraRig, Visuals};
+use flowram::tasks::{self, episode::{Actor, Observer, run_episode}};
+
+fn text() -> TextEncoder {
+    TextEncoder::load(&Deps::locate().minilm_dir().unwrap()).unwrap()
+}
+
+/// One push_buttons demonstration (front and wrist cameras, 64 px), rendered once.
+fn demonstration() -> &'static Episode {
+    static EPISODE: OnceLock<Episode> = OnceLock::new();
+    EPISODE.get_or_init(|| {
+        let task = tasks::by_name("push_buttons").unwrap();
+        let mut world = tasks::load_world(task.as_ref()).unwrap();
+        let mut rig = CameraRig::new(&world, 64, Visuals::Fast).unwrap();
+        let cameras = vec![rig.camera_index("front").unwrap(), rig.camera_index("left_shoulder").unwrap()];
+        let mut observer = Observer { rig: &mut rig, cameras };
+        let result = run_episode(task.as_ref(), &mut world, 0, 0, Actor::Expert, Some(&mut observer)).unwrap();
+        assert!(result.success);
+        result.to_dataset_episode().unwrap()
+    })
+}
+
+/// The CPU config shrunk to test size: 64 px, few tokens, one layer, a fast learning rate.
+fn tiny_config() -> PolicyConfig {
+    let mut c = PolicyConfig::cpu_default().unwrap();
+    c.observation.image_size = 64;
+    // push_buttons' part of the table: a tighter box makes a normalised error fewer millimetres.
+    c.observation.workspace = flowram::policy::geometry::WorkspaceBounds::new([0.15, -0.35, 0.74], [0.85, 0.35, 1.14]).unwrap();
+    c.observation.semantic_tokens = 128;
+    c.observation.geometric_tokens = 32;
+    c.observation.min_inside = 8;
+    c.model.layers = 1;
+    c.train.batch = 8;
+    c.train.learning_rate = 2e-3;
+    c.train.warmup_steps = 20;
+    c.train.cosine_decay = true;
+    c.train.min_learning_rate = 1e-5;
+    c.train.steps = 600;
+    c.train.weight_decay = 0.0;
+    c.train.ema_decay = 0.9;
+    c.train.translation_jitter = 0.0;
+    c.train.brightness_jitter = 0.0;
+    c.train.log_every = 10;
+    c.train.checkpoint_every = 1000;
+    c.validate().unwrap();
+    c
+}
+
+struct Quiet;
+impl TrainProgress for Quiet {
+    fn step(&mut self, _: u64, _: u64, _: &StepLoss) {}
+}
+
+#[test]
+fn overfits_a_handful_of_keyframes() {
+    let episode = demonstration().clone();
+    let keyframes = episode.keyframes();
+    let mut data = TrainingData::from_episodes(vec![episode.clone()]).unwrap();
+    let mut text = text();
+    let mut trainer = Trainer::new(&tiny_config()).unwrap();
+    let mut losses = Vec::new();
+    for _ in 0..600 {
+        losses.push(trainer.train_step(&mut data, &mut text).unwrap().total);
+    }
+    let first: f64 = losses[..20].iter().sum::<f64>() / 20.0;
+    let last: f64 = losses[losses.len() - 20..].iter().sum::<f64>() / 20.0;
+    assert!(last * 10.0 <= first, "loss fell only from {first:.4} to {last:.4}");
+    // Sample with the trained (not EMA) weights through a saved checkpoint.
+    let dir = tempfile::tempdir().unwrap();
+    trainer.ema.copy_to(&trainer.varmap).unwrap();
+    trainer.save(dir.path(), None).unwrap();
+    let mut policy = Policy::load(dir.path(), text).unwrap();
+    for k in 0..keyframes {
+        let observation = Observation::from_episode(&episode, k).unwrap();
+        let target = Observation::episode_action(&episode, k);
+        let predicted = policy.predict(&observation, &SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0 }).unwrap()[0];
+        let (p, r) = predicted.error_to(&target);
+        assert!(p < 0.01 && r < 5f32.to_radians(), "keyframe {k}: {:.1} mm, {:.1} deg off", p * 1e3, r.to_degrees());
+        assert_eq!(predicted.gripper_open, target.gripper_open, "keyframe {k}");
+    }
+}
+
+#[test]
+fn checkpoint_round_trip_and_truncation() {
+    let episode = demonstration().clone();
+    let mut data = TrainingData::from_episodes(vec![episode.clone()]).unwrap();
+    let run = tempfile::tempdir().unwrap();
+    let mut config = tiny_config();
+    config.train.steps = 3;
+    config.train.checkpoint_every = 3;
+    let mut text = text();
+    train(run.path(), Some(&config), &mut data, &mut text, false, None, &mut Quiet).unwrap();
+    let observation = Observation::from_episode(&episode, 1).unwrap();
+    let options = SamplingOptions { steps: 4, samples: 2, drs: true, seed: 7 };
+    let a = Policy::load(run.path(), text).unwrap().predict_once(&observation, &options);
+    let b = Policy::load(run.path(), self::text()).unwrap().predict_once(&observation, &options);
+    assert_eq!(a, b, "same checkpoint and noise seed, same prediction");
+    let other = Policy::load(run.path(), self::text()).unwrap().predict_once(&observation, &SamplingOptions { seed: 8, ..options });
+    assert_ne!(a, other, "another noise seed gives other samples");
+
+    // A new run refuses to overwrite, and a truncated checkpoint is named.
+    let err = train(run.path(), Some(&config), &mut data, &mut self::text(), false, None, &mut Quiet).err().unwrap().to_string();
+    assert!(err.contains("--resume"), "{err}");
+    let step = run.path().join("checkpoints/step-000000003");
+    let model = step.join("ema.safetensors");
+    let bytes = std::fs::read(&model).unwrap();
+    std::fs::write(&model, &bytes[..bytes.len() / 2]).unwrap();
+    let err = Policy::load(run.path(), self::text()).err().unwrap().to_string();
+    assert!(err.contains("ema.safetensors"), "{err}");
+}
+
+#[test]
+fn resume_continues_exactly() {
+    let episode = demonstration().clone();
+    let mut config = tiny_config();
+    config.train.steps = 4;
+    config.train.checkpoint_every = 2;
+    config.train.log_every = 1;
+    let straight = tempfile::tempdir().unwrap();
+    let resumed = tempfile::tempdir().unwrap();
+    let mut data = TrainingData::from_episodes(vec![episode]).unwrap();
+    train(straight.path(), Some(&config), &mut data, &mut text(), false, None, &mut Quiet).unwrap();
+    // "Killed" after step 2 (its checkpoint), then resumed to 4.
+    train(resumed.path(), Some(&config), &mut data, &mut text(), false, Some(2), &mut Quiet).unwrap();
+    train(resumed.path(), None, &mut data, &mut text(), true, Some(4), &mut Quiet).unwrap();
+    let read = |dir: &std::path::Path| std::fs::read(dir.join("checkpoints/step-000000004/model.safetensors")).unwrap();
+    assert!(read(straight.path()) == read(resumed.path()), "resumed weights differ from the uninterrupted run's");
+    let metrics = |dir: &std::path::Path| std::fs::read_to_string(dir.join("metrics.csv")).unwrap().lines().count();
+    assert_eq!(metrics(straight.path()), metrics(resumed.path()));
+}
+
+trait PredictOnce {
+    fn predict_once(self, observation: &Observation, options: &SamplingOptions) -> Vec<[f32; 7]>;
+}
+
+impl PredictOnce for Policy {
+    fn predict_once(mut self, observation: &Observation, options: &SamplingOptions) -> Vec<[f32; 7]> {
+        self.predict(observation, options)
+            .unwrap()
+            .iter()
+            .map(|k| [k.position[0], k.position[1], k.position[2], k.quat_wxyz[0], k.quat_wxyz[1], k.quat_wxyz[2], k.quat_wxyz[3]])
+            .collect()
+    }
+}

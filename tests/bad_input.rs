@@ -85,3 +85,27 @@ fn image_size_out_of_range_is_refused() {
         assert!(err.contains("image size") && err.contains("512"), "{err}");
     }
 }
+
+#[test]
+fn policy_commands_name_what_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no_run");
+    let out = common::flowram()
+        .args(["predict", "--checkpoint"])
+        .arg(&missing)
+        .args(["--episode"])
+        .arg(dir.path().join("episode.safetensors"))
+        .args(["--keyframe", "0"])
+        .output()
+        .unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("no_run") && err.contains("no such folder"), "{err}");
+    assert!(!missing.exists(), "a failed predict must not create folders");
+    let out = common::flowram().args(["train", "--data"]).arg(dir.path().join("no_data")).args(["--out"]).arg(dir.path().join("run")).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("no_data"), "{err}");
+    let bad = dir.path().join("bad.toml");
+    std::fs::write(&bad, std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml")).unwrap().replace("semantic_tokens = 1024", "semantic_tokens = 0")).unwrap();
+    let err = flowram::policy::config::PolicyConfig::from_toml_file(&bad).unwrap_err().to_string();
+    assert!(err.contains("observation.semantic_tokens") && err.contains("bad.toml"), "{err}");
+}

@@ -287,95 +287,7 @@ where
     Ok(a)
 }
 
-/// Axis-aligned workspace box in which keyframe positions are normalised to
-/// [-1, 1] per axis (metres, world frame).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Workspace {
-    pub min: [f32; 3],
-    pub max: [f32; 3],
-}
-
-impl Workspace {
-    /// A box; every `max` must exceed its `min`.
-    pub fn new(min: [f32; 3], max: [f32; 3]) -> Result<Self> {
-        for axis in 0..3 {
-            if !(min[axis].is_finite() && max[axis].is_finite() && max[axis] > min[axis]) {
-                return Err(PolicyError::Invalid(format!(
-                    "workspace axis {axis}: need finite min < max, got [{}, {}]",
-                    min[axis], max[axis]
-                )));
-            }
-        }
-        Ok(Self { min, max })
-    }
-
-    /// World position (m) -> normalised position ([-1, 1] inside the box).
-    pub fn normalise(&self, position: [f32; 3]) -> [f32; 3] {
-        std::array::from_fn(|i| {
-            2.0 * (position[i] - self.min[i]) / (self.max[i] - self.min[i]) - 1.0
-        })
-    }
-
-    /// Normalised position -> world position (m).
-    pub fn denormalise(&self, normalised: [f32; 3]) -> [f32; 3] {
-        std::array::from_fn(|i| {
-            self.min[i] + (normalised[i] + 1.0) * 0.5 * (self.max[i] - self.min[i])
-        })
-    }
-}
-
-/// Row-major rotation matrix -> 6D rotation: its first two columns,
-/// `[r00, r10, r20, r01, r11, r21]`.
-pub fn rotation_to_6d(rotation: &[[f32; 3]; 3]) -> [f32; 6] {
-    [
-        rotation[0][0],
-        rotation[1][0],
-        rotation[2][0],
-        rotation[0][1],
-        rotation[1][1],
-        rotation[2][1],
-    ]
-}
-
-/// 6D rotation -> row-major rotation matrix by Gram–Schmidt (the network's
-/// output is generally not orthonormal): `c0 = normalise(a)`,
-/// `c1 = normalise(b - (c0·b) c0)`, `c2 = c0 × c1`.
-/// Fails when the two columns are (nearly) zero or parallel.
-pub fn rotation_from_6d(rotation_6d: &[f32; 6]) -> Result<[[f32; 3]; 3]> {
-    let a = [rotation_6d[0], rotation_6d[1], rotation_6d[2]];
-    let b = [rotation_6d[3], rotation_6d[4], rotation_6d[5]];
-    let dot = |u: [f32; 3], v: [f32; 3]| u[0] * v[0] + u[1] * v[1] + u[2] * v[2];
-    let norm_a = dot(a, a).sqrt();
-    if norm_a.is_nan() || norm_a <= 1e-6 {
-        return Err(PolicyError::Invalid(format!(
-            "6D rotation {rotation_6d:?}: first column has norm {norm_a}, cannot orthonormalise"
-        )));
-    }
-    let c0 = a.map(|x| x / norm_a);
-    let proj = dot(c0, b);
-    let b_perp = [
-        b[0] - proj * c0[0],
-        b[1] - proj * c0[1],
-        b[2] - proj * c0[2],
-    ];
-    let norm_b = dot(b_perp, b_perp).sqrt();
-    if norm_b.is_nan() || norm_b <= 1e-6 {
-        return Err(PolicyError::Invalid(format!(
-            "6D rotation {rotation_6d:?}: columns are parallel, cannot orthonormalise"
-        )));
-    }
-    let c1 = b_perp.map(|x| x / norm_b);
-    let c2 = [
-        c0[1] * c1[2] - c0[2] * c1[1],
-        c0[2] * c1[0] - c0[0] * c1[2],
-        c0[0] * c1[1] - c0[1] * c1[0],
-    ];
-    Ok([
-        [c0[0], c1[0], c2[0]],
-        [c0[1], c1[1], c2[1]],
-        [c0[2], c1[2], c2[2]],
-    ])
-}
+// Workspace normalisation and 6D rotations live in `geometry`.
 
 #[cfg(test)]
 mod tests {
@@ -555,33 +467,5 @@ mod tests {
         ));
         let r = euler_sample(a0, 2, |_, _| Ok(t2(&[1.0, 2.0, 3.0], 1)));
         assert!(matches!(r, Err(PolicyError::Invalid(_))));
-    }
-
-    #[test]
-    fn rotation_6d_round_trips_and_orthonormalises() {
-        let (s, c) = (0.6f32, 0.8f32);
-        let r = [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]];
-        let six = rotation_to_6d(&r);
-        assert_eq!(six, [c, s, 0.0, -s, c, 0.0]);
-        let back = rotation_from_6d(&six).unwrap();
-        for i in 0..3 {
-            for j in 0..3 {
-                assert!((back[i][j] - r[i][j]).abs() < 1e-6);
-            }
-        }
-        // Scaled, skewed columns come back orthonormal with det +1.
-        let m = rotation_from_6d(&[2.0, 0.0, 0.0, 1.0, 3.0, 0.0]).unwrap();
-        assert_eq!(m, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
-        assert!(rotation_from_6d(&[1.0, 0.0, 0.0, 2.0, 0.0, 0.0]).is_err());
-    }
-
-    #[test]
-    fn workspace_normalisation_round_trips() {
-        let ws = Workspace::new([-0.5, -0.5, 0.0], [0.5, 0.5, 1.0]).unwrap();
-        assert_eq!(ws.normalise([0.5, -0.5, 0.5]), [1.0, -1.0, 0.0]);
-        let p = [0.1, -0.2, 0.7];
-        let q = ws.denormalise(ws.normalise(p));
-        assert!(p.iter().zip(q).all(|(a, b)| (a - b).abs() < 1e-6));
-        assert!(Workspace::new([0.0; 3], [1.0, 0.0, 1.0]).is_err());
     }
 }

@@ -45,6 +45,12 @@ impl Policy {
     /// Loads a checkpoint: a run folder (its latest checkpoint) or a checkpoint folder. Uses the
     /// EMA weights.
     pub fn load(path: &Path, text: TextEncoder) -> Result<Self> {
+        if !path.is_dir() {
+            return Err(PolicyError::File {
+                path: path.into(),
+                message: "no such folder: expected a run folder (runs/NAME, from `flowram train`) or one of its checkpoints/step-* folders".into(),
+            });
+        }
         let dir = if path.join("trainer.json").exists() {
             path.to_path_buf()
         } else {

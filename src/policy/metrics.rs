@@ -354,9 +354,9 @@ mod tests {
         let mut rows: Vec<MetricsRow> = (1..=200).map(row).collect();
         rows[5].bce = 0.0; // left out of the log plot, not an error
         plot_loss_curve(&rows, &path, 640, 400).unwrap();
-        let decoder = png::Decoder::new(File::open(&path).unwrap());
+        let decoder = png::Decoder::new(std::io::BufReader::new(File::open(&path).unwrap()));
         let mut reader = decoder.read_info().unwrap();
-        let mut buf = vec![0; reader.output_buffer_size()];
+        let mut buf = vec![0; reader.output_buffer_size().unwrap()];
         let info = reader.next_frame(&mut buf).unwrap();
         assert_eq!((info.width, info.height), (640, 400));
         // Not blank: some pixels are neither white nor grey (the curves).

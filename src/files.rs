@@ -6,17 +6,30 @@ use std::path::Path;
 
 /// Writes `bytes` to `path` atomically, creating missing parent folders.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
+    write_atomic_with(path, |tmp| {
+        let mut file = std::fs::File::create(tmp)?;
+        file.write_all(bytes)
+    })
+}
+
+/// Writes `path` atomically through `write`, which gets a temporary path in the same folder to
+/// write to (for writers that want a path: safetensors, plotters). The temporary name ends
+/// with the target's name, so writers that choose a format by extension still see it. The file
+/// is fsynced, renamed over `path`, and the folder fsynced so the rename is durable.
+pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> std::io::Result<()>) -> std::io::Result<()> {
+    use std::sync::atomic::{AtomicU64, Ordering};
+    static COUNTER: AtomicU64 = AtomicU64::new(0);
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir)?;
     let name = path.file_name().ok_or_else(|| {
         std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("{} is not a file path", path.display()))
     })?;
-    let tmp = dir.join(format!(".{}.{}.tmp", name.to_string_lossy(), std::process::id()));
+    let tmp = dir.join(format!(".tmp-{}-{}-{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed), name.to_string_lossy()));
     let result = (|| {
-        let mut file = std::fs::File::create(&tmp)?;
-        file.write_all(bytes)?;
-        file.sync_all()?;
-        std::fs::rename(&tmp, path)
+        write(&tmp)?;
+        std::fs::File::open(&tmp)?.sync_all()?;
+        std::fs::rename(&tmp, path)?;
+        std::fs::File::open(dir)?.sync_all()
     })();
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -44,10 +57,14 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("keep.txt");
         write_atomic(&path, b"old").unwrap();
-        // A folder where the temporary file would go makes the write fail before the rename.
-        let tmp = dir.path().join(format!(".keep.txt.{}.tmp", std::process::id()));
-        std::fs::create_dir(&tmp).unwrap();
-        assert!(write_atomic(&path, b"new").is_err());
+        // A writer that fails half-way (after writing part of the file), before the rename.
+        let failing = |tmp: &Path| {
+            std::fs::write(tmp, b"ne")?;
+            Err(std::io::Error::other("disk full"))
+        };
+        assert!(write_atomic_with(&path, failing).is_err());
         assert_eq!(std::fs::read(&path).unwrap(), b"old");
+        let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        assert_eq!(names, vec![std::ffi::OsString::from("keep.txt")], "the temporary file is removed");
     }
 }

@@ -248,7 +248,8 @@ fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
     }
 }
 
-fn median(values: &[f64]) -> f64 {
+/// Median (mean of the middle two for an even count).
+pub(super) fn median(values: &[f64]) -> f64 {
     let mut v = values.to_vec();
     v.sort_by(f64::total_cmp);
     let n = v.len();

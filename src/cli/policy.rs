@@ -12,6 +12,8 @@ use flowram::policy::text::TextEncoder;
 use flowram::policy::train::{StepLoss, TrainProgress, Trainer, TrainingData, train};
 use serde::Serialize;
 
+use super::bench::median;
+
 fn text_encoder() -> anyhow::Result<TextEncoder> {
     let dir = Deps::locate().minilm_dir()?;
     Ok(TextEncoder::load(&dir)?)
@@ -233,10 +235,6 @@ struct PolicyBenchReport {
     train_batch: usize,
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
 
 pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
     if args.repeats == 0 {
@@ -275,7 +273,7 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
                 policy.predict(&observation, &SamplingOptions { steps, samples: 1, drs, seed: r as u64 })?;
                 v.push(t0.elapsed().as_secs_f64() * 1e3);
             }
-            Ok(median(v))
+            Ok(median(&v))
         };
         Ok(StepTimes { s2: at(2)?, s4: at(4)?, s8: at(8)?, s16: at(16)?, s32: at(32)? })
     };
@@ -301,10 +299,10 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         cameras: observation.cameras.len(),
         image_size: config.observation.image_size,
         threads: rayon::current_num_threads(),
-        prepare_ms: median(prepare_ms),
-        encode_ms: median(encode_ms),
+        prepare_ms: median(&prepare_ms),
+        encode_ms: median(&encode_ms),
         infer_ms,
-        train_step_ms: median(train_ms),
+        train_step_ms: median(&train_ms),
         train_batch: args.train_batch,
     };
     if args.json {
@@ -381,9 +379,9 @@ fn summarise(rows: &[(f32, f32, bool)]) -> Errors {
     let rot: Vec<f64> = rows.iter().map(|r| f64::from(r.1).to_degrees()).collect();
     Errors {
         position_mm_mean: pos.iter().sum::<f64>() / n,
-        position_mm_median: median(pos),
+        position_mm_median: median(&pos),
         rotation_deg_mean: rot.iter().sum::<f64>() / n,
-        rotation_deg_median: median(rot),
+        rotation_deg_median: median(&rot),
         gripper_accuracy: rows.iter().filter(|r| r.2).count() as f64 / n,
     }
 }

@@ -23,7 +23,6 @@
 
 use std::collections::{BTreeMap, HashMap, HashSet};
 use std::fs::{self, File};
-use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
@@ -65,27 +64,7 @@ fn sync_dir(dir: &Path) -> Result<()> {
         .map_err(|e| io_error(dir, "fsync directory", e))
 }
 
-fn parent_dir(path: &Path) -> Result<PathBuf> {
-    match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => Ok(p.to_path_buf()),
-        Some(_) => Ok(PathBuf::from(".")),
-        None => Err(file_error(path, "has no parent directory")),
-    }
-}
 
-fn temp_sibling(path: &Path) -> Result<PathBuf> {
-    let name = path
-        .file_name()
-        .ok_or_else(|| file_error(path, "is not a file path"))?
-        .to_string_lossy();
-    // Keep the extension last: some writers (plotters) pick the format from it.
-    Ok(parent_dir(path)?.join(format!(
-        ".{}.tmp-{}-{}",
-        std::process::id(),
-        unique_suffix(),
-        name
-    )))
-}
 
 fn unique_suffix() -> u64 {
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -93,35 +72,27 @@ fn unique_suffix() -> u64 {
     COUNTER.fetch_add(1, Ordering::Relaxed)
 }
 
-/// Writes a file atomically with `write(temp_path)`: the content goes to a
-/// temporary file in the same directory, which is fsynced and renamed over
-/// `path`, and the directory is fsynced. Readers see the old or the new file,
-/// never a partial one.
+/// Writes a file atomically with `write(temp_path)` ([`crate::files::write_atomic_with`]:
+/// temporary file in the same folder, fsync, rename, folder fsync). Readers see the old or the
+/// new file, never a partial one. An error of `write` itself is returned as it was.
 pub fn write_atomic_with<F>(path: &Path, write: F) -> Result<()>
 where
     F: FnOnce(&Path) -> Result<()>,
 {
-    let tmp = temp_sibling(path)?;
-    let result = (|| {
-        write(&tmp)?;
-        File::open(&tmp)
-            .and_then(|f| f.sync_all())
-            .map_err(|e| io_error(&tmp, "fsync", e))?;
-        fs::rename(&tmp, path).map_err(|e| io_error(path, "rename the temporary file onto", e))?;
-        sync_dir(&parent_dir(path)?)
-    })();
-    if result.is_err() {
-        let _ = fs::remove_file(&tmp);
-    }
-    result
+    let mut inner = None;
+    let outcome = crate::files::write_atomic_with(path, |tmp| {
+        write(tmp).map_err(|e| {
+            let message = e.to_string();
+            inner = Some(e);
+            std::io::Error::other(message)
+        })
+    });
+    outcome.map_err(|e| inner.take().unwrap_or_else(|| io_error(path, "write", e)))
 }
 
 /// Writes `bytes` to `path` atomically (see [`write_atomic_with`]).
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
-    write_atomic_with(path, |tmp| {
-        let mut f = File::create(tmp).map_err(|e| io_error(tmp, "create", e))?;
-        f.write_all(bytes).map_err(|e| io_error(tmp, "write", e))
-    })
+    crate::files::write_atomic(path, bytes).map_err(|e| io_error(path, "write", e))
 }
 
 /// Writes tensors as a safetensors file atomically.

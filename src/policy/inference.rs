@@ -5,14 +5,14 @@
 //! only the suffix of the sequence. Several samples per observation run as one batch.
 use std::path::{Path, PathBuf};
 
-use candle_core::{DType, Tensor};
+use candle_core::DType;
 use candle_nn::{VarBuilder, VarMap};
 use rand::SeedableRng;
 
 use super::checkpoint::{CheckpointStore, load_model_weights};
 use super::config::PolicyConfig;
 use super::error::{PolicyError, Result};
-use super::flow::sample_source_noise;
+use super::flow::{euler_sample, sample_source_noise};
 use super::geometry::RadiusSchedule;
 use super::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
 use super::model::{ACTION_DIMS, EncodedObservation, FlowRam, device};
@@ -102,19 +102,19 @@ impl Policy {
         let encoded = encoded.repeat(s)?;
         let schedule = if options.drs { config.radius_schedule } else { RadiusSchedule::Global };
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
-        let mut a = sample_source_noise(&mut rng, s, ACTION_DIMS, &device())?;
+        let a0 = sample_source_noise(&mut rng, s, ACTION_DIMS, &device())?;
         let refs: Vec<(&PreparedObservation, Augmentation)> = vec![(prepared, Augmentation::NONE); s];
         let shared = vec![0usize; s];
-        let mut open = Tensor::zeros(s, DType::F32, &device())?;
-        let dt = 1.0 / options.steps as f64;
-        for k in 0..options.steps {
-            let t = k as f32 / options.steps as f32;
+        let mut open = None;
+        let a = euler_sample(a0, options.steps, |a, t| {
             let rows: Vec<[f32; 9]> = a.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
             let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
             let out = self.model.step(&encoded, &suffix)?;
-            a = (a + out.velocity.affine(dt, 0.0)?)?;
-            open = out.open_logit;
-        }
+            open = Some(out.open_logit);
+            Ok(out.velocity)
+        })?;
+        // The gripper logit of the last step (closest to the data).
+        let open = open.ok_or_else(|| PolicyError::Invalid("sampling ran no Euler step".into()))?;
         let rows = a.to_vec2::<f32>()?;
         let open = open.to_vec1::<f32>()?;
         Ok(rows

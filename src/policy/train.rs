@@ -275,12 +275,10 @@ pub fn train(
     let mut log = if resume { MetricsLog::resume(&metrics_path, trainer.step)? } else { MetricsLog::create(&metrics_path)? };
     let total = trainer.config.train.steps as u64;
     let (log_every, checkpoint_every) = (trainer.config.train.log_every as u64, trainer.config.train.checkpoint_every as u64);
-    let mut last = None;
     while trainer.step < total {
         let started = std::time::Instant::now();
         let loss = trainer.train_step(data, text)?;
         trainer.elapsed_seconds += started.elapsed().as_secs_f64();
-        last = Some(loss);
         progress.step(trainer.step, total, &loss);
         if trainer.step % log_every == 0 || trainer.step == total {
             log.append(&MetricsRow {
@@ -297,6 +295,5 @@ pub fn train(
             plot_loss_curve(&read_metrics(&metrics_path)?, &run.join("loss.png"), 900, 500)?;
         }
     }
-    let _ = last;
     Ok(trainer)
 }

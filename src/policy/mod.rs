@@ -9,7 +9,8 @@
 //!   region-aware Mamba blocks;
 //! - `model`: the network (token order, conditioning, heads); `flow`: conditional flow matching;
 //! - `train` (+ `optim`, `checkpoint`, `metrics`), `inference`: training and sampling;
-//! - `config`: hyper-parameters (`models/policy/*.toml`).
+//! - `config`: hyper-parameters (`models/policy/*.toml`); `runtime`: process-wide thread-pool
+//!   and allocator settings applied first thing in `main`.
 pub mod checkpoint;
 pub mod config;
 pub mod conv_kernels;
@@ -27,6 +28,7 @@ pub mod metrics;
 pub mod model;
 pub mod observation;
 pub mod optim;
+pub mod runtime;
 pub mod scan;
 pub mod text;
 pub mod train;

@@ -6,7 +6,7 @@ use anyhow::{Context, bail};
 use clap::Args;
 use flowram::deps::Deps;
 use flowram::policy::config::PolicyConfig;
-use flowram::policy::inference::{Policy, SamplingOptions};
+use flowram::policy::inference::{Policy, SampleProfile, SamplingOptions};
 use flowram::policy::observation::Observation;
 use flowram::policy::text::TextEncoder;
 use flowram::policy::train::{StepLoss, TrainProgress, Trainer, TrainingData, train};
@@ -231,6 +231,8 @@ struct PolicyBenchReport {
     prepare_ms: f64,
     encode_ms: f64,
     infer_ms: InferTimes,
+    /// The 8 DRS steps after encoding: token selection vs network, summed over steps.
+    drs8_steps: SampleProfile,
     train_step_ms: f64,
     train_batch: usize,
 }
@@ -278,6 +280,19 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         Ok(StepTimes { s2: at(2)?, s4: at(4)?, s8: at(8)?, s16: at(16)?, s32: at(32)? })
     };
     let infer_ms = InferTimes { drs: time_steps(true)?, global: time_steps(false)? };
+    // Where the 8 DRS steps' time goes (the sum over steps; median over repeats).
+    let prepared = policy.prepare(&observation)?;
+    let encoded = policy.encode(&prepared)?;
+    let mut profiles = Vec::new();
+    for r in 0..args.repeats {
+        let mut profile = SampleProfile::default();
+        policy.sample_profiled(&prepared, &encoded, &SamplingOptions { steps: 8, samples: 1, drs: true, seed: r as u64 }, &mut profile)?;
+        profiles.push(profile);
+    }
+    let drs8 = SampleProfile {
+        selection_ms: median(&profiles.iter().map(|p| p.selection_ms).collect::<Vec<_>>()),
+        network_ms: median(&profiles.iter().map(|p| p.network_ms).collect::<Vec<_>>()),
+    };
     // Training step at the config's batch size, on the rendered demonstration.
     let mut train_config = config.clone();
     train_config.train.batch = args.train_batch;
@@ -302,6 +317,7 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         prepare_ms: median(&prepare_ms),
         encode_ms: median(&encode_ms),
         infer_ms,
+        drs8_steps: drs8,
         train_step_ms: median(&train_ms),
         train_batch: args.train_batch,
     };
@@ -319,6 +335,10 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
             t.s2, t.s4, t.s8, t.s16, t.s32
         );
     }
+    println!(
+        "  8 DRS steps after encoding: token selection {:.1} ms, network {:.1} ms",
+        report.drs8_steps.selection_ms, report.drs8_steps.network_ms
+    );
     println!("  training step, batch {}: {:.0} ms", report.train_batch, report.train_step_ms);
     Ok(())
 }

@@ -4,6 +4,7 @@
 //! Euler step re-samples the geometric tokens around the current action estimate (DRS) and runs
 //! only the suffix of the sequence. Several samples per observation run as one batch.
 use std::path::{Path, PathBuf};
+use std::time::Instant;
 
 use candle_core::DType;
 use candle_nn::{VarBuilder, VarMap};
@@ -15,6 +16,7 @@ use super::error::{PolicyError, Result};
 use super::flow::{euler_sample, sample_source_noise};
 use super::geometry::RadiusSchedule;
 use super::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
+use super::runtime::in_pool;
 use super::model::{ACTION_DIMS, EncodedObservation, FlowRam, device};
 use super::observation::{KeyframePose, Observation};
 use super::text::TextEncoder;
@@ -31,6 +33,15 @@ pub struct SamplingOptions {
     pub drs: bool,
     /// Seed of the source noise a0.
     pub seed: u64,
+}
+
+/// Where the time of one `sample` call went (wall clock, milliseconds).
+#[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
+pub struct SampleProfile {
+    /// Geometric token selection (DRS) and the suffix inputs, all Euler steps.
+    pub selection_ms: f64,
+    /// The network's suffix (tokens, Mamba from the cached prefix, heads), all Euler steps.
+    pub network_ms: f64,
 }
 
 /// A model ready to predict.
@@ -85,12 +96,35 @@ impl Policy {
 
     /// Encodes a prepared observation (image features and the prefix's scan state).
     pub fn encode(&self, prepared: &PreparedObservation) -> Result<EncodedObservation> {
-        let prefix = prefix_inputs(self.model.config(), &[(prepared, Augmentation::NONE)])?;
-        self.model.encode(&prefix)
+        in_pool(|| {
+            let prefix = prefix_inputs(self.model.config(), &[(prepared, Augmentation::NONE)])?;
+            self.model.encode(&prefix)
+        })
     }
 
     /// Samples keyframes for an encoded observation.
     pub fn sample(&self, prepared: &PreparedObservation, encoded: &EncodedObservation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
+        self.sample_profiled(prepared, encoded, options, &mut SampleProfile::default())
+    }
+
+    /// [`Self::sample`], adding where the time went to `profile`.
+    pub fn sample_profiled(
+        &self,
+        prepared: &PreparedObservation,
+        encoded: &EncodedObservation,
+        options: &SamplingOptions,
+        profile: &mut SampleProfile,
+    ) -> Result<Vec<KeyframePose>> {
+        in_pool(|| self.sample_in_pool(prepared, encoded, options, profile))
+    }
+
+    fn sample_in_pool(
+        &self,
+        prepared: &PreparedObservation,
+        encoded: &EncodedObservation,
+        options: &SamplingOptions,
+        profile: &mut SampleProfile,
+    ) -> Result<Vec<KeyframePose>> {
         let config = self.model.config();
         if options.steps == 0 || options.samples == 0 {
             return Err(PolicyError::Invalid(format!(
@@ -108,8 +142,12 @@ impl Policy {
         let mut open = None;
         let a = euler_sample(a0, options.steps, |a, t| {
             let rows: Vec<[f32; 9]> = a.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
+            let t0 = Instant::now();
             let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
+            let t1 = Instant::now();
             let out = self.model.step(&encoded, &suffix)?;
+            profile.selection_ms += (t1 - t0).as_secs_f64() * 1e3;
+            profile.network_ms += t1.elapsed().as_secs_f64() * 1e3;
             open = Some(out.open_logit);
             Ok(out.velocity)
         })?;
@@ -126,8 +164,10 @@ impl Policy {
 
     /// Observation in, keyframes out.
     pub fn predict(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
-        let prepared = self.prepare(observation)?;
-        let encoded = self.encode(&prepared)?;
-        self.sample(&prepared, &encoded, options)
+        in_pool(|| {
+            let prepared = self.prepare(observation)?;
+            let encoded = self.encode(&prepared)?;
+            self.sample(&prepared, &encoded, options)
+        })
     }
 }

@@ -10,7 +10,10 @@
 //!   is mmap'ed, page-faulted in zeroed and munmap'ed on drop (11 % of the benchmark in page
 //!   faults). With mmap off for malloc and a high trim threshold, freed activations stay in the
 //!   heap for the next step: training step 6.6 -> 3.1 s at batch 8 (paper config); raising only
-//!   the mmap threshold (at most 32 MiB) left the 60 MiB training activations on mmap.
+//!   the mmap threshold (at most 32 MiB) left the 60 MiB training activations on mmap. One arena:
+//!   the pool threads' own arenas are mmap'ed heaps of at most 64 MiB, so with mmap off their
+//!   large blocks failed over to the main arena on every allocation (training step 3.1 -> 5.3 s
+//!   once it ran on pool threads, see [`in_pool`]; 3.0 s with one arena).
 //!
 //! A value the user already set in the environment wins.
 
@@ -41,9 +44,21 @@ fn configure_malloc() {
     // return means the parameter was refused, which leaves the default behaviour (slower, correct).
     unsafe {
         libc::mallopt(libc::M_MMAP_MAX, 0);
+        libc::mallopt(libc::M_ARENA_MAX, 1);
         libc::mallopt(libc::M_TRIM_THRESHOLD, TRIM_THRESHOLD);
     }
 }
 
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
 fn configure_malloc() {}
+
+/// Runs `work` on a thread of rayon's global pool (inline when already on one).
+///
+/// Every parallel kernel (GEMM, scan, convolutions) called from a thread outside the pool injects
+/// its job, wakes a worker and sleeps until it is done: two context switches per operation,
+/// ~60 per Euler step, which on this 2-core machine ate most of the second core (one Mamba
+/// suffix pass 9.9 ms with 2 threads vs 11.6 ms with 1). From inside the pool the calling
+/// worker takes its share of each job and the other steals the rest.
+pub fn in_pool<R: Send>(work: impl FnOnce() -> R + Send) -> R {
+    rayon::scope(|_| work())
+}

@@ -147,6 +147,11 @@ impl Trainer {
 
     /// One optimiser step on a batch drawn with the randomness of step `self.step + 1`.
     pub fn train_step(&mut self, data: &mut TrainingData, text: &mut TextEncoder) -> Result<StepLoss> {
+        // on a pool thread: see runtime::in_pool
+        super::runtime::in_pool(|| self.train_step_in_pool(data, text))
+    }
+
+    fn train_step_in_pool(&mut self, data: &mut TrainingData, text: &mut TextEncoder) -> Result<StepLoss> {
         let step = self.step + 1;
         self.optimizer.set_learning_rate(self.config.learning_rate_at(step))?;
         let config = &self.config;

@@ -345,6 +345,35 @@ fn prefix_then_suffixes_equal_whole_sequence() -> TestResult {
 }
 
 #[test]
+fn state_only_and_last_token_passes_equal_the_full_pass() -> TestResult {
+    let cfg = MambaConfig { n_layers: 3, ..MambaConfig::default() };
+    let (_varmap, stack) = perturbed_stack(&cfg, 90)?;
+    let r = &mut rng(91);
+    let b = 2;
+    let prefix = randn(r, &[b, 37, cfg.d_model]);
+    let prefix_cond = Conditioning::Shared(randn(r, &[b, cfg.d_cond()]));
+    let (_, full_state) = stack.forward_cached(&prefix, &prefix_cond, None)?;
+    let state = stack.forward_state(&prefix, &prefix_cond, None)?;
+    assert_eq!(state.tokens(), full_state.tokens());
+    for (a, f) in state.layers().iter().zip(full_state.layers()) {
+        assert!(rel_err(&a.ssm_state, &f.ssm_state) < TOL, "ssm state differs");
+        assert!(rel_err(&a.conv_tail, &f.conv_tail) < TOL, "conv tail differs");
+    }
+    // suffixes of 1 token, shorter than the conv tail, and longer
+    for len in [1usize, 2, 11] {
+        let suffix = randn(r, &[b, len, cfg.d_model]);
+        let cond = Conditioning::Shared(randn(r, &[b, cfg.d_cond()]));
+        let (full, _) = stack.forward_cached(&suffix, &cond, Some(&state))?;
+        let last = stack.forward_last_token(&suffix, &cond, Some(&state))?;
+        assert_eq!(last.dims(), &[b, cfg.d_model]);
+        let err = rel_err(&last, &full.narrow(1, len - 1, 1)?.squeeze(1)?);
+        println!("suffix of {len}: last-token rel err {err:.2e}");
+        assert!(err < TOL, "suffix of {len}: {err}");
+    }
+    Ok(())
+}
+
+#[test]
 fn suffix_reruns_from_the_same_saved_state() -> TestResult {
     let cfg = MambaConfig::default();
     let (_varmap, stack) = perturbed_stack(&cfg, 80)?;

@@ -18,6 +18,8 @@ pub enum BenchCommand {
     Policy(super::policy::PolicyBenchArgs),
     /// Held-out keyframe errors of a trained policy against the training-mean baseline.
     Heldout(super::policy::HeldOutArgs),
+    /// Closed-loop success rate of a trained policy on held-out seeds of tasks.
+    Success(super::episodes::SuccessBenchArgs),
 }
 
 #[derive(Debug, Args)]
@@ -112,6 +114,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Control(args) => control(args),
         BenchCommand::Policy(args) => super::policy::bench_cmd(args),
         BenchCommand::Heldout(args) => super::policy::heldout_cmd(args),
+        BenchCommand::Success(args) => super::episodes::success_bench(args),
     }
 }
 

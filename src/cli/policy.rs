@@ -14,7 +14,7 @@ use serde::Serialize;
 
 use super::bench::median;
 
-fn text_encoder() -> anyhow::Result<TextEncoder> {
+pub fn text_encoder() -> anyhow::Result<TextEncoder> {
     let dir = Deps::locate().minilm_dir()?;
     Ok(TextEncoder::load(&dir)?)
 }

@@ -786,6 +786,27 @@ pub fn select_geometric_tokens(
     min_inside: usize,
     schedule: &RadiusSchedule,
 ) -> Result<GeometricSelection> {
+    select_geometric_tokens_cached(points_norm, None, center, t, n2, min_inside, schedule)
+}
+
+/// [`select_geometric_tokens`] with the global selection of these points computed once
+/// ([`global_geometric_tokens`] with the same `n2`; inference reuses it at every step that
+/// samples globally: t = 0, the w/o-DRS ablation, the fallback, and radii that hold every point).
+/// The result is identical to [`select_geometric_tokens`]'s. A `global` of another length than
+/// `n2` is ignored.
+pub fn select_geometric_tokens_cached(
+    points_norm: &[[f32; 3]],
+    global: Option<&[usize]>,
+    center: [f32; 3],
+    t: f32,
+    n2: usize,
+    min_inside: usize,
+    schedule: &RadiusSchedule,
+) -> Result<GeometricSelection> {
+    let global_indices = || match global {
+        Some(g) if g.len() == n2 => Ok(g.to_vec()),
+        _ => global_geometric_tokens(points_norm, n2),
+    };
     if points_norm.is_empty() {
         return Err(PolicyError::Invalid("geometric tokens need a non-empty point cloud".into()));
     }
@@ -803,7 +824,7 @@ pub fn select_geometric_tokens(
     schedule.validate()?;
     let radius = schedule.radius(t);
     if radius >= GLOBAL_RADIUS {
-        return Ok(GeometricSelection { indices: global_selection(points_norm, n2)?, radius, fell_back: false });
+        return Ok(GeometricSelection { indices: global_indices()?, radius, fell_back: false });
     }
 
     let center = center.map(|v| v.clamp(-1.0, 1.0));
@@ -817,9 +838,12 @@ pub fn select_geometric_tokens(
         .collect();
 
     if inside.len() < min_inside {
-        return Ok(GeometricSelection { indices: global_selection(points_norm, n2)?, radius, fell_back: true });
+        return Ok(GeometricSelection { indices: global_indices()?, radius, fell_back: true });
     }
-    let indices = if inside.len() >= n2 {
+    let indices = if inside.len() == points_norm.len() {
+        // every point inside: FPS over the same candidates from the same start
+        global_indices()?
+    } else if inside.len() >= n2 {
         let local: Vec<[f32; 3]> = inside.iter().map(|&i| points_norm[i]).collect();
         farthest_point_sample(&local, n2, 0)?.into_iter().map(|k| inside[k]).collect()
     } else {
@@ -828,8 +852,9 @@ pub fn select_geometric_tokens(
     Ok(GeometricSelection { indices, radius, fell_back: false })
 }
 
-/// `n2` indices sampled over the whole cloud (cyclic repetition when it is smaller than `n2`).
-fn global_selection(points_norm: &[[f32; 3]], n2: usize) -> Result<Vec<usize>> {
+/// `n2` indices sampled over the whole cloud: farthest point sampling from index 0 (cyclic
+/// repetition when the cloud is smaller than `n2`). The geometric tokens at t = 0.
+pub fn global_geometric_tokens(points_norm: &[[f32; 3]], n2: usize) -> Result<Vec<usize>> {
     if points_norm.len() >= n2 {
         farthest_point_sample(points_norm, n2, 0)
     } else {
@@ -1265,6 +1290,24 @@ mod tests {
         assert_eq!(serde_json::from_str::<RadiusSchedule>(&json).unwrap(), schedule);
         assert_eq!(serde_json::from_str::<RadiusSchedule>(r#"{"kind":"global"}"#).unwrap(), RadiusSchedule::Global);
         assert!(serde_json::from_str::<RadiusSchedule>(r#"{"kind":"dynamic","r_min":0.4,"r_max":1.0,"power":1}"#).is_err());
+    }
+
+    #[test]
+    fn cached_global_selection_gives_the_same_tokens() {
+        let mut rng = ChaCha8Rng::seed_from_u64(23);
+        let cloud = random_cloud(&mut rng, 3000);
+        let global = global_geometric_tokens(&cloud, 256).unwrap();
+        let wrong_length = global_geometric_tokens(&cloud, 100).unwrap();
+        for schedule in [RadiusSchedule::default(), RadiusSchedule::Global] {
+            // t = 0 (global), every point inside (r ~ 3.3), a local ball, the fallback (far centre)
+            for (center, t) in [([0.1, 0.2, -0.3], 0.0), ([0.0, 0.0, 0.0], 0.05), ([0.2, -0.3, 0.1], 0.7), ([3.0, 3.0, 3.0], 1.0)] {
+                let plain = select_geometric_tokens(&cloud, center, t, 256, 32, &schedule).unwrap();
+                for g in [&global, &wrong_length] {
+                    let cached = select_geometric_tokens_cached(&cloud, Some(g), center, t, 256, 32, &schedule).unwrap();
+                    assert_eq!(cached, plain, "t {t}, centre {center:?}, {schedule:?}");
+                }
+            }
+        }
     }
 
     #[test]

@@ -6,7 +6,7 @@ use candle_core::{DType, Tensor};
 
 use super::config::PolicyConfig;
 use super::error::{PolicyError, Result};
-use super::geometry::{RadiusSchedule, select_geometric_tokens};
+use super::geometry::{RadiusSchedule, select_geometric_tokens_cached};
 use super::model::{PrefixInputs, SuffixInputs, TEXT_WIDTH};
 use super::observation::{Observation, SceneCloud, lift_scene, proprio_features};
 use super::text::TextEncoder;
@@ -51,7 +51,7 @@ pub fn prepare(observation: &Observation, config: &PolicyConfig, text: &mut Text
             images.extend(view.rgb.iter().skip(ch).step_by(3).copied());
         }
     }
-    let cloud = lift_scene(observation, o.feature_stride, &o.workspace, o.semantic_tokens)?;
+    let cloud = lift_scene(observation, o.feature_stride, &o.workspace, o.semantic_tokens, o.geometric_tokens)?;
     let proprio = proprio_features(&observation.proprio, &o.workspace)?;
     let features = text.encode(&observation.instruction)?;
     let tokens = features.tokens.to_dtype(DType::F32)?;
@@ -139,7 +139,15 @@ pub fn suffix_inputs(
         let cells_per_sample = s.cameras * grid * grid;
         // The selection runs in the sample's own (unshifted) frame.
         let center = [actions[i][0] - aug.shift[0], actions[i][1] - aug.shift[1], actions[i][2] - aug.shift[2]];
-        let selection = select_geometric_tokens(&s.cloud.points_norm, center, t[i].clamp(0.0, 1.0), n2, o.min_inside, schedule)?;
+        let selection = select_geometric_tokens_cached(
+            &s.cloud.points_norm,
+            Some(&s.cloud.geometric_global),
+            center,
+            t[i].clamp(0.0, 1.0),
+            n2,
+            o.min_inside,
+            schedule,
+        )?;
         for &k in &selection.indices {
             cells.push((feature_sample[i] * cells_per_sample + s.cloud.cells[k]) as u32);
             xyz.extend(shifted(s.cloud.points_norm[k], aug.shift));

@@ -18,7 +18,7 @@
 
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::mamba_ops::{ada_rms_norm, causal_conv_silu, gated_residual, silu_gate};
-use crate::policy::scan::{selective_scan, selective_scan_with_state_gated, ScanInputs};
+use crate::policy::scan::{selective_scan, selective_scan_with_state, selective_scan_with_state_gated, ScanInputs};
 use candle_core::{DType, Device, Shape, Tensor};
 use candle_nn::{Init, VarBuilder};
 use serde::{Deserialize, Serialize};
@@ -371,6 +371,35 @@ impl MambaMixer {
     }
 }
 
+impl MambaMixer {
+    /// Inference pass of a last layer whose outputs are needed only at the last token (`Some`)
+    /// or not at all (`None`: the state only). The scan still runs over every token (the state
+    /// depends on all of them), but z, the gate and out_proj run on the last token or not at
+    /// all: of the five projections, only in_proj's x half, x_proj and dt_proj stay full length.
+    /// Returns ([B, 1, C] or nothing, the state after `h`).
+    fn forward_tail(&self, h: &Tensor, state: Option<&LayerState>, last_token: bool) -> Result<(Option<Tensor>, LayerState)> {
+        let (di, n, r) = (self.d_inner, self.d_state, self.dt_rank);
+        let l = h.dim(1)?;
+        let x = linear(h, &self.in_proj.narrow(0, 0, di)?)?;
+        let u = causal_conv_silu(&x, &self.conv_weight, &self.conv_bias, state.map(|s| &s.conv_tail))?;
+        let dbc = linear(&u, &self.x_proj)?;
+        let delta_raw = linear(&dbc.narrow(2, 0, r)?, &self.dt_proj)?;
+        let (bm, cm) = (dbc.narrow(2, r, n)?, dbc.narrow(2, r + n, n)?);
+        let a = self.a_log.exp()?.neg()?;
+        let inputs = ScanInputs { u: &u, delta_raw: &delta_raw, b: &bm, c: &cm, a: &a, d: &self.d, delta_bias: &self.dt_bias };
+        let (y, ssm_state) = selective_scan_with_state(&inputs, state.map(|s| &s.ssm_state))?;
+        let conv_tail = next_conv_tail(state.map(|s| &s.conv_tail), &x, self.d_conv - 1)?;
+        let out = if last_token {
+            let z = linear(&h.narrow(1, l - 1, 1)?.contiguous()?, &self.in_proj.narrow(0, di, di)?)?;
+            let gated = silu_gate(&y.narrow(1, l - 1, 1)?.contiguous()?, &z)?;
+            Some(linear(&gated, &self.out_proj)?)
+        } else {
+            None
+        };
+        Ok((out, LayerState { conv_tail, ssm_state }))
+    }
+}
+
 /// The last `k1` conv inputs after appending `x` [B, L, Di] to `old` [B, k1, Di].
 fn next_conv_tail(old: Option<&Tensor>, x: &Tensor, k1: usize) -> Result<Tensor> {
     let (b, l, di) = x.dims3()?;
@@ -488,6 +517,25 @@ impl MambaLayer {
     }
 }
 
+impl MambaLayer {
+    /// [`MambaMixer::forward_tail`] inside the residual block: ([B, 1, C] output of the last
+    /// token or nothing, the state).
+    fn forward_tail(&self, x: &Tensor, modulation: &Tensor, state: Option<&LayerState>, last_token: bool) -> Result<(Option<Tensor>, LayerState)> {
+        let c = self.d_model;
+        let l = x.dim(1)?;
+        let h = ada_rms_norm(x, &self.norm_weight, &modulation.narrow(2, 0, 2 * c)?, self.norm_eps)?;
+        let (mixed, new_state) = self.mixer.forward_tail(&h, state, last_token)?;
+        let out = match mixed {
+            Some(mixed) => {
+                let gate = modulation.narrow(1, l - 1, 1)?.narrow(2, 2 * c, c)?;
+                Some(gated_residual(&x.narrow(1, l - 1, 1)?.contiguous()?, &mixed, &gate)?)
+            }
+            None => None,
+        };
+        Ok((out, new_state))
+    }
+}
+
 fn check_cond(c: &Tensor, shape: &[usize], what: &str) -> Result<()> {
     if c.dims() != shape || c.dtype() != DType::F32 {
         return Err(PolicyError::Invalid(format!(
@@ -587,16 +635,7 @@ impl MambaStack {
         state: Option<&StackState>,
     ) -> Result<(Tensor, StackState)> {
         let (b, l) = self.check_tokens(x)?;
-        if let Some(state) = state {
-            if state.layers.len() != self.layers.len() || state.batch_size() != b {
-                return Err(PolicyError::Invalid(format!(
-                    "MambaStack: cached state is for {} layers and batch {}, the stack has {} layers and the tokens batch {b}",
-                    state.layers.len(),
-                    state.batch_size(),
-                    self.layers.len()
-                )));
-            }
-        }
+        self.check_state(state, b)?;
         let cond = detach_cond(cond);
         let mut x = x.detach();
         let mut layer_states = Vec::with_capacity(self.layers.len());
@@ -619,6 +658,64 @@ impl MambaStack {
                 tokens,
             },
         ))
+    }
+}
+
+impl MambaStack {
+    /// Inference: the state after x [B, L, d_model] (run from `state`), without the outputs.
+    /// Equals the state of [`Self::forward_cached`]; skips the last layer's z, gate, out_proj and
+    /// residual and the final norm (an observation prefix, whose outputs nobody reads).
+    pub fn forward_state(&self, x: &Tensor, cond: &Conditioning, state: Option<&StackState>) -> Result<StackState> {
+        Ok(self.forward_tail(x, cond, state, false)?.1)
+    }
+
+    /// Inference: the output of the last token only, [B, d_model] (equal to the last row of
+    /// [`Self::forward_cached`]'s output); the new state is not kept. A flow step's suffix,
+    /// whose heads read the action token alone.
+    pub fn forward_last_token(&self, x: &Tensor, cond: &Conditioning, state: Option<&StackState>) -> Result<Tensor> {
+        let out = self.forward_tail(x, cond, state, true)?.0;
+        let out = out.ok_or_else(|| PolicyError::Invalid("MambaStack: the last layer returned no output".into()))?;
+        Ok(out.squeeze(1)?)
+    }
+
+    fn forward_tail(&self, x: &Tensor, cond: &Conditioning, state: Option<&StackState>, last_token: bool) -> Result<(Option<Tensor>, StackState)> {
+        let Some((last, init)) = self.layers.split_last() else {
+            return Err(PolicyError::Invalid("MambaStack: no layers".into()));
+        };
+        let (b, l) = self.check_tokens(x)?;
+        self.check_state(state, b)?;
+        let cond = detach_cond(cond);
+        let mut x = x.detach();
+        let mut layer_states = Vec::with_capacity(self.layers.len());
+        for (i, layer) in init.iter().enumerate() {
+            let layer = layer.detached();
+            let modulation = layer.modulation(&cond, b, l)?;
+            let (out, new_state) = layer.forward(&x, &modulation, Some(state.map(|s| &s.layers[i])))?;
+            x = out;
+            layer_states.push(new_state.ok_or_else(|| PolicyError::Invalid("MambaStack: a cached layer returned no state".into()))?);
+        }
+        let layer = last.detached();
+        let modulation = layer.modulation(&cond, b, l)?;
+        let (out, new_state) = layer.forward_tail(&x, &modulation, state.map(|s| &s.layers[init.len()]), last_token)?;
+        layer_states.push(new_state);
+        let out = match out {
+            Some(out) => Some(self.final_norm(&out, &self.final_norm_weight.detach())?),
+            None => None,
+        };
+        let tokens = state.map_or(0, |s| s.tokens) + l;
+        Ok((out, StackState { layers: layer_states, tokens }))
+    }
+
+    fn check_state(&self, state: Option<&StackState>, batch: usize) -> Result<()> {
+        match state {
+            Some(state) if state.layers.len() != self.layers.len() || state.batch_size() != batch => Err(PolicyError::Invalid(format!(
+                "MambaStack: cached state is for {} layers and batch {}, the stack has {} layers and the tokens batch {batch}",
+                state.layers.len(),
+                state.batch_size(),
+                self.layers.len()
+            ))),
+            _ => Ok(()),
+        }
     }
 }
 

@@ -256,16 +256,15 @@ impl FlowRam {
     pub fn encode(&self, prefix: &PrefixInputs) -> Result<EncodedObservation> {
         let features = self.image_features(&prefix.images)?.detach();
         let (tokens, condition) = self.prefix_tokens(&features, prefix)?;
-        let (_, state) = self.mamba.forward_cached(&tokens, &Conditioning::Shared(condition.clone()), None)?;
+        let state = self.mamba.forward_state(&tokens, &Conditioning::Shared(condition.clone()), None)?;
         Ok(EncodedObservation { features, state, condition })
     }
 
     /// Inference: one flow step from the cached prefix.
     pub fn step(&self, encoded: &EncodedObservation, suffix: &SuffixInputs) -> Result<Velocity> {
         let (tokens, condition) = self.suffix_tokens(&encoded.features, &encoded.condition, suffix)?;
-        let l = tokens.dim(1)?;
-        let (h, _) = self.mamba.forward_cached(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
-        self.heads(&h.narrow(1, l - 1, 1)?.squeeze(1)?)
+        let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
+        self.heads(&last)
     }
 }
 

@@ -128,11 +128,15 @@ pub struct SceneCloud {
     /// N1 indices into `points_norm`: the semantic tokens (farthest point sampling; repeated
     /// cyclically when the cloud has fewer points).
     pub semantic: Vec<usize>,
+    /// N2 indices into `points_norm`: the global geometric tokens
+    /// ([`geometry::global_geometric_tokens`]), computed once for every flow step that uses them.
+    pub geometric_global: Vec<usize>,
 }
 
 /// Lifts every feature pixel (stride `stride`) of every camera to the world, keeps those in the
-/// workspace and picks the N1 semantic tokens. Errors when no pixel lies in the workspace.
-pub fn lift_scene(observation: &Observation, stride: usize, workspace: &WorkspaceBounds, n1: usize) -> Result<SceneCloud> {
+/// workspace, picks the N1 semantic tokens and the N2 global geometric tokens. Errors when no
+/// pixel lies in the workspace.
+pub fn lift_scene(observation: &Observation, stride: usize, workspace: &WorkspaceBounds, n1: usize, n2: usize) -> Result<SceneCloud> {
     let grid = observation.size / stride.max(1);
     let per_camera = grid * grid;
     let mut cloud = SceneCloud::default();
@@ -152,5 +156,6 @@ pub fn lift_scene(observation: &Observation, stride: usize, workspace: &Workspac
     } else {
         (0..cloud.points_norm.len()).cycle().take(n1).collect()
     };
+    cloud.geometric_global = geometry::global_geometric_tokens(&cloud.points_norm, n2)?;
     Ok(cloud)
 }

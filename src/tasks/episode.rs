@@ -67,19 +67,7 @@ pub fn run_episode(
     actor: Actor,
     mut cameras: Option<&mut Observer<'_>>,
 ) -> Result<EpisodeResult, TaskError> {
-    if variation >= task.variation_count() {
-        return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 });
-    }
-    world.reset_to("home")?;
-    let mut rng = StdRng::seed_from_u64(seed);
-    let mut state = task.reset(world, variation, &mut rng)?;
-    let limits = JointLimits::panda().map_err(|e| TaskError::Config(e.to_string()))?;
-    let config = OscConfig::default_profile().map_err(|e| TaskError::Config(e.to_string()))?;
-    let description = world.arm_description()?;
-    let mut runner = Runner::build(&description, limits, config, &world.read_state(), world.timestep()).map_err(|e| TaskError::Config(e.to_string()))?;
-    let t0 = world.time();
-    // Let the objects settle while the controller holds the arm.
-    hold(world, &mut runner, SETTLE_S)?;
+    let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
     let keyframes = match actor {
         Actor::Expert => task.expert(world, &state)?,
         Actor::Idle { .. } => Vec::new(),
@@ -99,18 +87,8 @@ pub fn run_episode(
     let mut gripper_open = true;
     for (k, keyframe) in keyframes.iter().enumerate() {
         result.observations.push(observe(world, cameras.as_deref_mut(), gripper_open)?);
-        result.actions.push(proprio_of(keyframe));
-        let report = runner.run(world, &[in_base(&base, keyframe)?]).map_err(|e| TaskError::Config(e.to_string()))?;
-        for r in &report.keyframes {
-            if r.reached {
-                result.reached += 1;
-            } else {
-                result.problems.push((k, r.error.clone().unwrap_or_default()));
-            }
-        }
+        execute(task, world, &mut runner, &base, k, keyframe, &mut state, &mut result)?;
         gripper_open = keyframe.gripper_open;
-        task.observe(world, &mut state);
-        result.reached_poses.push(tcp_proprio(world, gripper_open));
     }
     if let Actor::Idle { seconds } = actor {
         hold(world, &mut runner, f64::from(seconds))?;
@@ -120,6 +98,103 @@ pub fn run_episode(
     result.sim_seconds = world.time() - t0;
     result.episode.state = state;
     Ok(result)
+}
+
+/// Executes keyframe `k` (world frame) and records how it went.
+#[allow(clippy::too_many_arguments)]
+fn execute(
+    task: &dyn Task,
+    world: &mut World,
+    runner: &mut Runner,
+    base: &Isometry3<f64>,
+    k: usize,
+    keyframe: &Keyframe,
+    state: &mut super::TaskState,
+    result: &mut EpisodeResult,
+) -> Result<(), TaskError> {
+    result.actions.push(proprio_of(keyframe));
+    let report = runner.run(world, &[in_base(base, keyframe)?]).map_err(|e| TaskError::Config(e.to_string()))?;
+    for r in &report.keyframes {
+        if r.reached {
+            result.reached += 1;
+        } else {
+            result.problems.push((k, r.error.clone().unwrap_or_default()));
+        }
+    }
+    task.observe(world, state);
+    result.reached_poses.push(tcp_proprio(world, keyframe.gripper_open));
+    Ok(())
+}
+
+/// A learned policy as an episode's actor: the next keyframe from what the cameras see.
+pub trait KeyframePolicy {
+    /// The next keyframe (world frame) for `instruction`, from `observation` (the observer's
+    /// camera frames and the proprioception).
+    fn next_keyframe(&mut self, instruction: &str, observation: &KeyframeObservation) -> Result<Keyframe, TaskError>;
+}
+
+/// Resets the task (seeded) and lets `policy` act closed loop: observe with the observer's
+/// cameras, predict the next keyframe, execute it through IK -> ruckig -> OSC, and again, until
+/// the task succeeds or `max_keyframes` were executed. Lock-step: the simulation waits for the
+/// policy (deterministic). Unreachable predictions are recorded as problems, not errors.
+pub fn run_policy_episode(
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+    policy: &mut dyn KeyframePolicy,
+    observer: &mut Observer<'_>,
+    max_keyframes: usize,
+) -> Result<EpisodeResult, TaskError> {
+    let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
+    let base = world.base_pose();
+    let instruction = task.instruction(variation);
+    let mut result = EpisodeResult {
+        episode: Episode { task: task.name(), variation, instruction: instruction.clone(), seed, state: Default::default() },
+        success: false,
+        keyframes: 0,
+        reached: 0,
+        sim_seconds: 0.0,
+        observations: Vec::new(),
+        actions: Vec::new(),
+        reached_poses: Vec::new(),
+        problems: Vec::new(),
+    };
+    let mut gripper_open = true;
+    for k in 0..max_keyframes {
+        let observation = observe(world, Some(&mut *observer), gripper_open)?;
+        let keyframe = policy.next_keyframe(&instruction, &observation)?;
+        result.observations.push(observation);
+        execute(task, world, &mut runner, &base, k, &keyframe, &mut state, &mut result)?;
+        result.keyframes += 1;
+        gripper_open = keyframe.gripper_open;
+        if task.success(world, &state) {
+            break;
+        }
+    }
+    result.success = task.success(world, &state);
+    result.sim_seconds = world.time() - t0;
+    result.episode.state = state;
+    Ok(result)
+}
+
+/// Resets the world and the task (seeded), builds the control stack and lets the objects
+/// settle while the controller holds the arm. Returns the task state, the runner and the start
+/// time.
+fn begin(task: &dyn Task, world: &mut World, variation: usize, seed: u64) -> Result<(super::TaskState, Runner, f64), TaskError> {
+    if variation >= task.variation_count() {
+        return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 });
+    }
+    world.reset_to("home")?;
+    let mut rng = StdRng::seed_from_u64(seed);
+    let state = task.reset(world, variation, &mut rng)?;
+    let limits = JointLimits::panda().map_err(|e| TaskError::Config(e.to_string()))?;
+    let config = OscConfig::default_profile().map_err(|e| TaskError::Config(e.to_string()))?;
+    let description = world.arm_description()?;
+    let mut runner = Runner::build(&description, limits, config, &world.read_state(), world.timestep()).map_err(|e| TaskError::Config(e.to_string()))?;
+    let t0 = world.time();
+    hold(world, &mut runner, SETTLE_S)?;
+    Ok((state, runner, t0))
 }
 
 /// Holds the arm where it is for `seconds`.

@@ -3,13 +3,15 @@
 //! paper's Table A), a seeded reset that randomises object placement within documented ranges,
 //! a success check on the simulator state, and an expert that computes keyframes (TCP pose +
 //! gripper) from the object poses, like RLBench's waypoints. `episode.rs` runs them closed
-//! loop through the control stack.
+//! loop through the control stack, with the expert or a learned policy (`policy_actor.rs`:
+//! FlowRAM) choosing the keyframes.
 pub mod close_jar;
 pub mod colors;
 pub mod episode;
 pub mod grasp;
 pub mod layout;
 pub mod open_drawer;
+pub mod policy_actor;
 pub mod push_buttons;
 pub mod slide_block;
 pub mod stack_blocks;
@@ -51,6 +53,8 @@ pub enum TaskError {
     Sim(#[from] SimError),
     #[error("{0}")]
     Config(String),
+    #[error("policy: {0}")]
+    Policy(#[from] crate::policy::PolicyError),
 }
 
 /// One RLBench-style task.

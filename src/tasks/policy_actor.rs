@@ -1,0 +1,69 @@
+//! The FlowRAM policy as an episode's actor ([`KeyframePolicy`]): the observer's RGB-D frames,
+//! the proprioception and the instruction in, the first sampled keyframe out.
+use std::time::Instant;
+
+use super::TaskError;
+use super::episode::{KeyframeObservation, KeyframePolicy};
+use crate::control::runner::Keyframe;
+use crate::policy::inference::{Policy, SamplingOptions};
+use crate::policy::observation::{CameraView, Observation};
+
+/// A trained policy acting in lock-step with the simulation.
+pub struct FlowRamActor {
+    pub policy: Policy,
+    /// Euler steps, samples (the first is executed), DRS; `seed` is the noise seed of the first
+    /// prediction, the k-th uses `seed + k` (deterministic episodes).
+    pub options: SamplingOptions,
+    /// Wall-clock milliseconds of each prediction, observation to keyframe.
+    pub inference_ms: Vec<f64>,
+}
+
+impl FlowRamActor {
+    pub fn new(policy: Policy, options: SamplingOptions) -> Self {
+        Self { policy, options, inference_ms: Vec::new() }
+    }
+}
+
+impl KeyframePolicy for FlowRamActor {
+    fn next_keyframe(&mut self, instruction: &str, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
+        let observation = policy_observation(instruction, observation)?;
+        let options = SamplingOptions { seed: self.options.seed + self.inference_ms.len() as u64, ..self.options };
+        let start = Instant::now();
+        let poses = self.policy.predict(&observation, &options)?;
+        self.inference_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        let pose = poses.first().ok_or_else(|| TaskError::Config("the policy returned no keyframe".into()))?;
+        Ok(Keyframe {
+            position: pose.position.map(f64::from),
+            quat_wxyz: pose.quat_wxyz.map(f64::from),
+            gripper_open: pose.gripper_open,
+        })
+    }
+}
+
+/// The policy's view of a keyframe observation (square frames of one size, in the observer's
+/// camera order).
+pub fn policy_observation(instruction: &str, observation: &KeyframeObservation) -> Result<Observation, TaskError> {
+    let first = observation
+        .frames
+        .first()
+        .ok_or_else(|| TaskError::Config("the policy needs camera frames: the observer has no cameras".into()))?;
+    let size = first.intrinsics.width;
+    let mut cameras = Vec::with_capacity(observation.frames.len());
+    for frame in &observation.frames {
+        if frame.intrinsics.width != size || frame.intrinsics.height != size {
+            return Err(TaskError::Config(format!(
+                "the policy needs square frames of one size; camera {} is {}x{} (the first is {size}x{size})",
+                frame.camera, frame.intrinsics.width, frame.intrinsics.height
+            )));
+        }
+        let k = frame.intrinsics.matrix();
+        let e = frame.extrinsics.to_homogeneous();
+        cameras.push(CameraView {
+            rgb: frame.rgb.clone(),
+            depth: frame.depth.clone(),
+            intrinsics: std::array::from_fn(|r| std::array::from_fn(|c| k[(r, c)] as f32)),
+            camera_to_world: std::array::from_fn(|r| std::array::from_fn(|c| e[(r, c)] as f32)),
+        });
+    }
+    Ok(Observation { size, cameras, proprio: observation.proprio, instruction: instruction.to_string() })
+}

@@ -1,0 +1,122 @@
+//! A learned policy closed loop: the episode loop that lets a policy choose keyframes from
+//! rendered observations (replaying the expert through it succeeds and stops at success), the
+//! conversion of rendered frames to the policy's observation (identical to the dataset path the
+//! policy was trained on), and FlowRAM itself acting through the real control stack.
+use flowram::control::runner::Keyframe;
+use flowram::deps::Deps;
+use flowram::policy::config::PolicyConfig;
+use flowram::policy::inference::{Policy, SamplingOptions};
+use flowram::policy::observation::Observation;
+use flowram::policy::text::TextEncoder;
+use flowram::sim::{CameraRig, Visuals};
+use flowram::tasks::episode::{Actor, KeyframeObservation, KeyframePolicy, Observer, run_episode, run_policy_episode};
+use flowram::tasks::policy_actor::{FlowRamActor, policy_observation};
+use flowram::tasks::{self, TaskError};
+
+/// Plays back recorded keyframes, and remembers what it was shown.
+struct Replay {
+    keyframes: Vec<[f32; 8]>,
+    seen: Vec<[f32; 8]>,
+}
+
+impl KeyframePolicy for Replay {
+    fn next_keyframe(&mut self, _instruction: &str, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
+        let k = self.seen.len();
+        self.seen.push(observation.proprio);
+        let a = self.keyframes.get(k).ok_or_else(|| TaskError::Config(format!("no recorded keyframe {k}")))?;
+        Ok(Keyframe {
+            position: [a[0], a[1], a[2]].map(f64::from),
+            quat_wxyz: [a[3], a[4], a[5], a[6]].map(f64::from),
+            gripper_open: a[7] > 0.5,
+        })
+    }
+}
+
+#[test]
+fn expert_keyframes_replayed_through_the_policy_loop_succeed_and_stop_there() {
+    let task = tasks::by_name("push_buttons").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let expert = run_episode(task.as_ref(), &mut world, 3, 7, Actor::Expert, None).unwrap();
+    assert!(expert.success);
+    let mut replay = Replay { keyframes: expert.actions.clone(), seen: Vec::new() };
+    let mut rig = CameraRig::new(&world, 32, Visuals::Fast).unwrap();
+    let mut observer = Observer { rig: &mut rig, cameras: vec![0] };
+    // more keyframes allowed than recorded: the loop must stop at success, not ask for more
+    let result = run_policy_episode(task.as_ref(), &mut world, 3, 7, &mut replay, &mut observer, expert.keyframes + 3).unwrap();
+    assert!(result.success, "problems: {:?}", result.problems);
+    // the expert's last keyframe retreats after the last press: the loop stops before it
+    assert_eq!(result.keyframes, expert.keyframes - 1);
+    assert_eq!(replay.seen.len(), result.keyframes, "asked for keyframes after success");
+    assert_eq!(result.observations.len(), result.keyframes);
+    assert_eq!(result.actions[..], expert.actions[..result.keyframes]);
+    assert!(result.observations.iter().all(|o| o.frames.len() == 1));
+    // the policy saw the proprioception of each observation, and it changed as the arm moved
+    assert_eq!(replay.seen, result.observations.iter().map(|o| o.proprio).collect::<Vec<_>>());
+    assert_ne!(replay.seen[0], replay.seen[1]);
+    // a bad variation is refused before anything runs
+    assert!(matches!(
+        run_policy_episode(task.as_ref(), &mut world, 999, 7, &mut replay, &mut observer, 3),
+        Err(TaskError::BadVariation { .. })
+    ));
+}
+
+#[test]
+fn rendered_frames_become_the_same_observation_as_the_dataset_path() {
+    let task = tasks::by_name("open_drawer").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let mut rig = CameraRig::new(&world, 48, Visuals::Fast).unwrap();
+    let cameras = vec![rig.camera_index("front").unwrap(), rig.camera_index("wrist").unwrap()];
+    let mut observer = Observer { rig: &mut rig, cameras };
+    let result = run_episode(task.as_ref(), &mut world, 1, 2, Actor::Expert, Some(&mut observer)).unwrap();
+    let episode = result.to_dataset_episode().unwrap();
+    for k in [0, result.observations.len() - 1] {
+        let from_dataset = Observation::from_episode(&episode, k).unwrap();
+        let live = policy_observation(&result.episode.instruction, &result.observations[k]).unwrap();
+        assert_eq!(live.size, from_dataset.size);
+        assert_eq!(live.proprio, from_dataset.proprio);
+        assert_eq!(live.instruction, from_dataset.instruction);
+        assert_eq!(live.cameras.len(), 2);
+        for (a, b) in live.cameras.iter().zip(&from_dataset.cameras) {
+            assert_eq!(a.rgb, b.rgb);
+            assert_eq!(a.depth, b.depth);
+            assert_eq!(a.intrinsics, b.intrinsics);
+            assert_eq!(a.camera_to_world, b.camera_to_world);
+        }
+    }
+    let empty = KeyframeObservation { frames: Vec::new(), proprio: [0.0; 8] };
+    let err = policy_observation("open the top drawer", &empty).unwrap_err().to_string();
+    assert!(err.contains("camera"), "{err}");
+}
+
+#[test]
+fn flowram_acts_closed_loop_through_the_control_stack() {
+    let mut config = PolicyConfig::cpu_default().unwrap();
+    config.observation.image_size = 48;
+    config.observation.semantic_tokens = 128;
+    config.observation.geometric_tokens = 32;
+    config.observation.min_inside = 8;
+    config.model.layers = 1;
+    config.validate().unwrap();
+    let text = TextEncoder::load(&Deps::locate().minilm_dir().unwrap()).unwrap();
+    let policy = Policy::random(&config, text).unwrap();
+    let options = SamplingOptions { steps: 2, samples: 1, drs: true, seed: 5 };
+    let mut actor = FlowRamActor::new(policy, options);
+    let task = tasks::by_name("slide_block").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let mut rig = CameraRig::new(&world, 48, Visuals::Fast).unwrap();
+    let cameras = vec![rig.camera_index("front").unwrap(), rig.camera_index("left_shoulder").unwrap()];
+    let mut observer = Observer { rig: &mut rig, cameras };
+    let result = run_policy_episode(task.as_ref(), &mut world, 0, 1, &mut actor, &mut observer, 2).unwrap();
+    // an untrained policy does not slide the block: both keyframes were asked for and executed
+    assert!(!result.success);
+    assert_eq!(result.keyframes, 2);
+    assert_eq!(actor.inference_ms.len(), 2);
+    assert_eq!(result.actions.len(), 2);
+    for a in &result.actions {
+        assert!(a.iter().all(|v| v.is_finite()), "{a:?}");
+        let q_norm: f32 = a[3..7].iter().map(|v| v * v).sum::<f32>().sqrt();
+        assert!((q_norm - 1.0).abs() < 1e-3, "quaternion norm {q_norm}");
+    }
+    // the noise seed advances per keyframe, so two predictions from similar observations differ
+    assert_ne!(result.actions[0], result.actions[1]);
+}

@@ -13,6 +13,8 @@ use flowram::sim::{CameraRig, Visuals};
 use flowram::tasks::{self, episode::{Actor, Observer, run_episode}};
 
 fn text() -> TextEncoder {
+    // the binary's allocator settings (training steps twice as fast; see policy::runtime)
+    flowram::policy::runtime::configure_malloc();
     TextEncoder::load(&Deps::locate().minilm_dir().unwrap()).unwrap()
 }
 

@@ -35,8 +35,10 @@ pub fn configure_process() {
     configure_malloc();
 }
 
+/// The malloc part of [`configure_process`] alone: safe to call at any time, from any thread
+/// (tests call it; they cannot set environment variables once the harness runs threads).
 #[cfg(all(target_os = "linux", target_env = "gnu"))]
-fn configure_malloc() {
+pub fn configure_malloc() {
     if std::env::var_os("GLIBC_TUNABLES").is_some() {
         return;
     }
@@ -50,7 +52,7 @@ fn configure_malloc() {
 }
 
 #[cfg(not(all(target_os = "linux", target_env = "gnu")))]
-fn configure_malloc() {}
+pub fn configure_malloc() {}
 
 /// Runs `work` on a thread of rayon's global pool (inline when already on one).
 ///

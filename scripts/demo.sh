@@ -6,8 +6,9 @@
 #  3. an expert episode of a task, as an animated GIF (out/demo/push_buttons.gif);
 #  4. the simulator, renderer and controller benchmarks;
 #  5. the FlowRAM policy: demonstrations of two tasks, a short training run (out/demo/policy:
-#     metrics.csv, loss.png, checkpoints), a prediction on a held-out episode, and the policy
-#     latency benchmark. FLOWRAM_DEMO_TRAIN_STEPS (default 300) sets the training length; the
+#     metrics.csv, loss.png, checkpoints), a prediction on a held-out episode, the policy acting
+#     closed loop on a held-out seed (out/demo/policy_open_drawer.gif), and the policy latency
+#     benchmark. FLOWRAM_DEMO_TRAIN_STEPS (default 300) sets the training length; the
 #     CPU config's full 2000 steps take about 25 min.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
@@ -30,4 +31,5 @@ done
 rm -rf out/demo/policy
 "$bin" train --data out/demo/data/push_buttons,out/demo/data/open_drawer --out out/demo/policy --steps "$steps"
 "$bin" predict --checkpoint out/demo/policy --episode out/demo/data/held_out_open_drawer/episode_00000.safetensors --keyframe 1 --samples 3
+"$bin" run --task open_drawer --policy flowram --checkpoint out/demo/policy --seed 1000 --max-keyframes 5 --video out/demo/policy_open_drawer.gif
 "$bin" bench policy

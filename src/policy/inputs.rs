@@ -9,6 +9,7 @@ use super::error::{PolicyError, Result};
 use super::geometry::{RadiusSchedule, select_geometric_tokens_cached};
 use super::model::{PrefixInputs, SuffixInputs, TEXT_WIDTH};
 use super::observation::{Observation, SceneCloud, lift_scene, proprio_features};
+use super::serialization::sort_far_to_near;
 use super::text::TextEncoder;
 
 /// An observation turned into what the network needs (everything that does not depend on the
@@ -148,7 +149,10 @@ pub fn suffix_inputs(
             o.min_inside,
             schedule,
         )?;
-        for &k in &selection.indices {
+        // scan order: farthest to nearest, the action token after the nearest (see `serialization`)
+        let mut indices = selection.indices;
+        sort_far_to_near(&s.cloud.points_norm, center.map(|v| v.clamp(-1.0, 1.0)), &mut indices);
+        for &k in &indices {
             cells.push((feature_sample[i] * cells_per_sample + s.cloud.cells[k]) as u32);
             xyz.extend(shifted(s.cloud.points_norm[k], aug.shift));
         }

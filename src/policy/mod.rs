@@ -5,6 +5,7 @@
 //! - `image_encoder`, `text`: per-pixel image features (trained from scratch), the frozen
 //!   MiniLM instruction encoder;
 //! - `geometry`: rotations (6D), lifting, farthest point sampling, the Dynamic Radius Schedule;
+//!   `serialization`: the order of point tokens in the scan;
 //! - `scan` (+ `cpu_kernels`, `mamba_ops`), `mamba`: the selective-scan kernel and the
 //!   region-aware Mamba blocks;
 //! - `model`: the network (token order, conditioning, heads); `flow`: conditional flow matching;
@@ -30,6 +31,7 @@ pub mod observation;
 pub mod optim;
 pub mod runtime;
 pub mod scan;
+pub mod serialization;
 pub mod text;
 pub mod train;
 

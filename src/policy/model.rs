@@ -10,10 +10,11 @@
 //!
 //! - language: the instruction's MiniLM token features (384) projected to C;
 //! - semantic: image-encoder features at the N1 farthest-point-sampled workspace points, plus a
-//!   3D positional encoding of their (normalised) positions;
+//!   3D positional encoding of their (normalised) positions; in Z-order (Morton) along the scan;
 //! - geometric: features at N2 points sampled around the noisy action position with the
 //!   radius schedule r(t) (DRS), plus the encodings of their position and of their offset from
-//!   the action position;
+//!   the action position; from the farthest to the nearest to the action position (see
+//!   `serialization`);
 //! - action: the noisy action a_t (normalised position + 6D rotation) projected to C, plus the
 //!   encoding of its position.
 //!

@@ -126,7 +126,7 @@ pub struct SceneCloud {
     /// For each point, its feature pixel: `camera * cells_per_camera + row * grid + col`.
     pub cells: Vec<usize>,
     /// N1 indices into `points_norm`: the semantic tokens (farthest point sampling; repeated
-    /// cyclically when the cloud has fewer points).
+    /// cyclically when the cloud has fewer points), in scan order (Z-order curve).
     pub semantic: Vec<usize>,
     /// N2 indices into `points_norm`: the global geometric tokens
     /// ([`geometry::global_geometric_tokens`]), computed once for every flow step that uses them.
@@ -156,6 +156,8 @@ pub fn lift_scene(observation: &Observation, stride: usize, workspace: &Workspac
     } else {
         (0..cloud.points_norm.len()).cycle().take(n1).collect()
     };
+    // scan order: along a Z-order curve (see `serialization`)
+    super::serialization::sort_by_morton(&cloud.points_norm, &mut cloud.semantic);
     cloud.geometric_global = geometry::global_geometric_tokens(&cloud.points_norm, n2)?;
     Ok(cloud)
 }

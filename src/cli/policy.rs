@@ -384,12 +384,28 @@ struct Errors {
 }
 
 #[derive(Serialize)]
+struct HeldOutErrors {
+    /// The task's name, or "all".
+    task: String,
+    keyframes: usize,
+    model: Errors,
+    /// Always the training set's mean keyframe.
+    training_mean: Errors,
+    /// Always the mean keyframe of the training episodes of the same task (the instruction names
+    /// the task, so this is what a model that ignores the scene could reach).
+    task_mean: Errors,
+}
+
+#[derive(Serialize)]
 struct HeldOutReport {
     keyframes: usize,
     episodes: usize,
     steps: usize,
     model: Errors,
     training_mean: Errors,
+    task_mean: Errors,
+    /// The same per task.
+    tasks: Vec<HeldOutErrors>,
     seconds: f64,
 }
 
@@ -406,18 +422,12 @@ fn summarise(rows: &[(f32, f32, bool)]) -> Errors {
     }
 }
 
-/// Held-out keyframe errors of a trained model against the trivial baseline that always
-/// predicts the training set's mean keyframe (mean position, chordal-mean rotation, majority
-/// gripper state).
-pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
+/// The mean keyframe of `episodes` (mean position, chordal-mean rotation, majority gripper).
+fn mean_keyframe<'a>(episodes: impl Iterator<Item = &'a flowram::data::Episode>) -> anyhow::Result<flowram::policy::observation::KeyframePose> {
     use flowram::policy::geometry;
-    use flowram::policy::observation::KeyframePose;
-    let mut policy = Policy::load(&args.checkpoint, text_encoder()?)?;
-    let steps = args.steps.unwrap_or(policy.config().flow.sampling_steps);
-    let train_set = TrainingData::load(&args.train_data)?;
     let mut sum = [0f64; 9];
     let (mut count, mut open) = (0usize, 0usize);
-    for e in train_set.episodes() {
+    for e in episodes {
         for k in 0..e.keyframes() {
             let a = Observation::episode_action(e, k);
             let r = geometry::quaternion_to_6d(a.quat_wxyz)?;
@@ -431,39 +441,72 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
             open += usize::from(a.gripper_open);
         }
     }
+    anyhow::ensure!(count > 0, "the training datasets hold no keyframes");
     let mean = |i: usize| (sum[i] / count as f64) as f32;
-    let baseline = KeyframePose {
+    Ok(flowram::policy::observation::KeyframePose {
         position: [mean(0), mean(1), mean(2)],
         quat_wxyz: geometry::quaternion_from_6d(std::array::from_fn(|i| mean(3 + i))),
         gripper_open: 2 * open >= count,
-    };
+    })
+}
+
+/// Held-out keyframe errors of a trained model against two trivial baselines: always the
+/// training set's mean keyframe, and always the mean keyframe of the same task.
+pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
+    let mut policy = Policy::load(&args.checkpoint, text_encoder()?)?;
+    let steps = args.steps.unwrap_or(policy.config().flow.sampling_steps);
+    let train_set = TrainingData::load(&args.train_data)?;
+    let baseline = mean_keyframe(train_set.episodes().iter())?;
     let held_out = TrainingData::load(&args.data)?;
+    let mut task_names: Vec<String> = held_out.episodes().iter().map(|e| e.task.clone()).collect();
+    task_names.sort();
+    task_names.dedup();
     let started = Instant::now();
-    let (mut model_rows, mut baseline_rows) = (Vec::new(), Vec::new());
-    for e in held_out.episodes() {
-        for k in 0..e.keyframes() {
-            let observation = Observation::from_episode(e, k)?;
-            let target = Observation::episode_action(e, k);
-            let predicted = policy.predict(&observation, &SamplingOptions { steps, samples: 1, drs: true, seed: k as u64 })?[0];
-            let (p, r) = predicted.error_to(&target);
-            model_rows.push((p, r, predicted.gripper_open == target.gripper_open));
-            let (p, r) = baseline.error_to(&target);
-            baseline_rows.push((p, r, baseline.gripper_open == target.gripper_open));
+    // per held-out keyframe: task index, (model, training mean, task mean) errors
+    let mut rows: Vec<(usize, [(f32, f32, bool); 3])> = Vec::new();
+    for (ti, task) in task_names.iter().enumerate() {
+        let task_baseline = mean_keyframe(train_set.episodes().iter().filter(|e| &e.task == task))
+            .with_context(|| format!("no training episodes of task {task} for its baseline"))?;
+        for e in held_out.episodes().iter().filter(|e| &e.task == task) {
+            for k in 0..e.keyframes() {
+                let observation = Observation::from_episode(e, k)?;
+                let target = Observation::episode_action(e, k);
+                let predicted = policy.predict(&observation, &SamplingOptions { steps, samples: 1, drs: true, seed: k as u64 })?[0];
+                let row = |p: &flowram::policy::observation::KeyframePose| {
+                    let (d, r) = p.error_to(&target);
+                    (d, r, p.gripper_open == target.gripper_open)
+                };
+                rows.push((ti, [row(&predicted), row(&baseline), row(&task_baseline)]));
+            }
         }
     }
+    let errors = |name: &str, filter: &dyn Fn(usize) -> bool| {
+        let pick = |j: usize| rows.iter().filter(|r| filter(r.0)).map(|r| r.1[j]).collect::<Vec<_>>();
+        HeldOutErrors {
+            task: name.to_string(),
+            keyframes: rows.iter().filter(|r| filter(r.0)).count(),
+            model: summarise(&pick(0)),
+            training_mean: summarise(&pick(1)),
+            task_mean: summarise(&pick(2)),
+        }
+    };
+    let all = errors("all", &|_| true);
+    let tasks = task_names.iter().enumerate().map(|(ti, name)| errors(name, &|t| t == ti)).collect();
     let report = HeldOutReport {
-        keyframes: model_rows.len(),
+        keyframes: all.keyframes,
         episodes: held_out.episodes().len(),
         steps,
-        model: summarise(&model_rows),
-        training_mean: summarise(&baseline_rows),
+        model: all.model,
+        training_mean: all.training_mean,
+        task_mean: all.task_mean,
+        tasks,
         seconds: started.elapsed().as_secs_f64(),
     };
     if args.json {
         return super::print_json(&report);
     }
     println!("{} held-out keyframes of {} episodes, {} Euler steps:", report.keyframes, report.episodes, steps);
-    for (name, e) in [("model", &report.model), ("training mean", &report.training_mean)] {
+    let line = |name: &str, e: &Errors| {
         println!(
             "  {name:>13}: position {:.1} mm mean / {:.1} median, rotation {:.1} deg mean / {:.1} median, gripper {:.0} % right",
             e.position_mm_mean,
@@ -472,6 +515,14 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
             e.rotation_deg_median,
             e.gripper_accuracy * 100.0
         );
+    };
+    line("model", &report.model);
+    line("training mean", &report.training_mean);
+    line("task mean", &report.task_mean);
+    for t in &report.tasks {
+        println!("  {} ({} keyframes):", t.task, t.keyframes);
+        line("model", &t.model);
+        line("task mean", &t.task_mean);
     }
     Ok(())
 }

@@ -9,7 +9,7 @@
 #     metrics.csv, loss.png, checkpoints), a prediction on a held-out episode, the policy acting
 #     closed loop on a held-out seed (out/demo/policy_open_drawer.gif), and the policy latency
 #     benchmark. FLOWRAM_DEMO_TRAIN_STEPS (default 300) sets the training length; the
-#     CPU config's full 2000 steps take about 25 min.
+#     CPU config's full 5000 steps take about 41 min.
 set -euo pipefail
 cd "$(dirname "${BASH_SOURCE[0]}")/.."
 scripts/setup.sh

@@ -194,6 +194,22 @@ pub fn plot_loss_curve(rows: &[MetricsRow], path: &Path, width: u32, height: u32
     }
 }
 
+/// A log-axis tick label: `100`, `0.1`, `1e-5` (not `9.999999999e-5`).
+fn log_label(v: f64) -> String {
+    if v.is_nan() || v <= 0.0 {
+        return format!("{v}");
+    }
+    let exponent = v.log10().round() as i32;
+    if (v / 10f64.powi(exponent) - 1.0).abs() > 1e-6 {
+        return format!("{v:.2e}");
+    }
+    match exponent {
+        0..=3 => format!("{}", 10i32.pow(exponent as u32)),
+        -3..0 => format!("{:.*}", exponent.unsigned_abs() as usize, 10f64.powi(exponent)),
+        _ => format!("1e{exponent}"),
+    }
+}
+
 fn draw_loss_curve(
     rows: &[MetricsRow],
     path: &Path,
@@ -246,7 +262,7 @@ fn draw_loss_curve(
         .map_err(|e| plot_error(e.to_string()))?;
     let mut mesh = chart.configure_mesh();
     if text {
-        mesh.x_desc("step").y_desc("loss (log)");
+        mesh.x_desc("step").y_desc("loss (log)").y_label_formatter(&|v| log_label(*v));
     } else {
         mesh.disable_x_axis().disable_y_axis();
     }
@@ -287,6 +303,12 @@ fn draw_loss_curve(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn log_axis_labels_are_short() {
+        let labels: Vec<String> = [1e-6, 9.99999999e-6, 1e-3, 0.1, 1.0, 100.0, 1e4, 0.05].into_iter().map(log_label).collect();
+        assert_eq!(labels, ["1e-6", "1e-5", "0.001", "0.1", "1", "100", "1e4", "5.00e-2"]);
+    }
 
     fn tmp_dir(tag: &str) -> PathBuf {
         let p =

@@ -109,3 +109,27 @@ fn policy_commands_name_what_is_missing() {
     let err = flowram::policy::config::PolicyConfig::from_toml_file(&bad).unwrap_err().to_string();
     assert!(err.contains("observation.semantic_tokens") && err.contains("bad.toml"), "{err}");
 }
+
+#[test]
+fn closed_loop_commands_name_what_is_missing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = common::flowram().args(["run", "--task", "open_drawer", "--policy", "flowram"]).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("--checkpoint"), "{err}");
+    let out = common::flowram().args(["run", "--task", "open_drawer", "--checkpoint"]).arg(dir.path()).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("--policy flowram"), "a checkpoint the expert would ignore: {err}");
+    let missing = dir.path().join("no_run");
+    let out = common::flowram().args(["bench", "success", "--tasks", "open_drawer", "--checkpoint"]).arg(&missing).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("no_run") && err.contains("no such folder"), "{err}");
+    let out = common::flowram().args(["bench", "success", "--tasks", "juggle", "--checkpoint"]).arg(&missing).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("juggle") && err.contains("open_drawer"), "unknown task named before loading anything: {err}");
+    let out = common::flowram().args(["bench", "success", "--tasks", "open_drawer", "--episodes", "0"]).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("--episodes"), "{err}");
+    let out = common::flowram().args(["run", "--task", "open_drawer", "--policy", "flowram", "--max-keyframes", "0", "--checkpoint"]).arg(&missing).output().unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("--max-keyframes"), "{err}");
+}

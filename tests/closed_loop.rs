@@ -20,8 +20,8 @@ struct Replay {
 }
 
 impl KeyframePolicy for Replay {
-    fn next_keyframe(&mut self, _instruction: &str, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
-        let k = self.seen.len();
+    fn next_keyframe(&mut self, _instruction: &str, k: usize, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
+        assert_eq!(k, self.seen.len(), "keyframes are asked for in order");
         self.seen.push(observation.proprio);
         let a = self.keyframes.get(k).ok_or_else(|| TaskError::Config(format!("no recorded keyframe {k}")))?;
         Ok(Keyframe {
@@ -119,4 +119,7 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     }
     // the noise seed advances per keyframe, so two predictions from similar observations differ
     assert_ne!(result.actions[0], result.actions[1]);
+    // and restarts per episode: the same seeded episode again gives the same keyframes
+    let again = run_policy_episode(task.as_ref(), &mut world, 0, 1, &mut actor, &mut observer, 2).unwrap();
+    assert_eq!(again.actions, result.actions);
 }

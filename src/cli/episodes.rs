@@ -46,27 +46,31 @@ pub struct LearnedArgs {
 /// A loaded learned policy, its cameras and its rig.
 pub struct Learned {
     pub actor: FlowRamActor,
-    pub rig: CameraRig,
-    pub cameras: Vec<usize>,
-    pub max_keyframes: usize,
+    rig: CameraRig,
+    cameras: Vec<usize>,
+    max_keyframes: usize,
 }
 
 impl LearnedArgs {
-    /// Loads the checkpoint and builds the camera rig at its image size.
-    pub fn load(&self, world: &flowram::sim::World) -> anyhow::Result<Learned> {
-        let checkpoint = self.checkpoint.as_ref().context("--policy flowram needs --checkpoint runs/NAME")?;
+    /// Loads the checkpoint (`--checkpoint`), with the sampling options.
+    pub fn load_actor(&self) -> anyhow::Result<FlowRamActor> {
+        let checkpoint = self.checkpoint.as_ref().context("the learned policy needs --checkpoint runs/NAME (a run folder from `flowram train`)")?;
         anyhow::ensure!(self.max_keyframes > 0, "--max-keyframes must be at least 1");
         let policy = flowram::policy::inference::Policy::load(checkpoint, super::policy::text_encoder()?)?;
-        let size = policy.config().observation.image_size;
         let options = SamplingOptions {
             steps: self.steps.unwrap_or(policy.config().flow.sampling_steps),
             samples: 1,
             drs: !self.no_drs,
             seed: 0,
         };
-        let rig = CameraRig::new(world, size, Visuals::Full)?;
+        Ok(FlowRamActor::new(policy, options))
+    }
+
+    /// `actor` with a camera rig for `world` at the checkpoint's image size.
+    pub fn with_rig(&self, actor: FlowRamActor, world: &flowram::sim::World) -> anyhow::Result<Learned> {
+        let rig = CameraRig::new(world, actor.policy.config().observation.image_size, Visuals::Full)?;
         let cameras = self.cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
-        Ok(Learned { actor: FlowRamActor::new(policy, options), rig, cameras, max_keyframes: self.max_keyframes })
+        Ok(Learned { actor, rig, cameras, max_keyframes: self.max_keyframes })
     }
 }
 
@@ -131,7 +135,10 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let result = match args.policy {
         Policy::Expert => run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Expert, None)?,
         Policy::Idle => run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Idle { seconds: 5 }, None)?,
-        Policy::Flowram => args.learned.load(&world)?.episode(task.as_ref(), &mut world, variation, args.seed)?,
+        Policy::Flowram => {
+            let actor = args.learned.load_actor()?;
+            args.learned.with_rig(actor, &world)?.episode(task.as_ref(), &mut world, variation, args.seed)?
+        }
     };
     let seconds = start.elapsed().as_secs_f64();
     if let Some(path) = &args.video {
@@ -290,11 +297,13 @@ struct TaskSuccess {
 /// `flowram bench success`: closed-loop success rate of a trained policy on held-out seeds.
 pub fn success_bench(args: SuccessBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
+    let task_list = args.tasks.iter().map(|name| tasks::by_name(name)).collect::<Result<Vec<_>, _>>()?;
+    let mut actor = args.learned.load_actor()?;
     let mut reports = Vec::new();
-    for name in &args.tasks {
-        let task = tasks::by_name(name)?;
+    for task in task_list {
         let mut world = tasks::load_world(task.as_ref())?;
-        let mut learned = args.learned.load(&world)?;
+        actor.inference_ms.clear();
+        let mut learned = args.learned.with_rig(actor, &world)?;
         let bar = episode_bar(task.name(), args.episodes);
         let (mut successes, mut keyframes, mut reached) = (0usize, 0usize, 0usize);
         for i in 0..args.episodes {
@@ -316,6 +325,7 @@ pub fn success_bench(args: SuccessBenchArgs) -> anyhow::Result<()> {
             reached: if keyframes > 0 { reached as f64 / keyframes as f64 } else { 0.0 },
             inference_ms_median: super::bench::median(&learned.actor.inference_ms),
         });
+        actor = learned.actor;
     }
     if args.json {
         return super::print_json(&reports);

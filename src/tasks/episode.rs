@@ -128,9 +128,9 @@ fn execute(
 
 /// A learned policy as an episode's actor: the next keyframe from what the cameras see.
 pub trait KeyframePolicy {
-    /// The next keyframe (world frame) for `instruction`, from `observation` (the observer's
-    /// camera frames and the proprioception).
-    fn next_keyframe(&mut self, instruction: &str, observation: &KeyframeObservation) -> Result<Keyframe, TaskError>;
+    /// Keyframe `k` of the episode (world frame) for `instruction`, from `observation` (the
+    /// observer's camera frames and the proprioception).
+    fn next_keyframe(&mut self, instruction: &str, k: usize, observation: &KeyframeObservation) -> Result<Keyframe, TaskError>;
 }
 
 /// Resets the task (seeded) and lets `policy` act closed loop: observe with the observer's
@@ -163,7 +163,7 @@ pub fn run_policy_episode(
     let mut gripper_open = true;
     for k in 0..max_keyframes {
         let observation = observe(world, Some(&mut *observer), gripper_open)?;
-        let keyframe = policy.next_keyframe(&instruction, &observation)?;
+        let keyframe = policy.next_keyframe(&instruction, k, &observation)?;
         result.observations.push(observation);
         execute(task, world, &mut runner, &base, k, &keyframe, &mut state, &mut result)?;
         result.keyframes += 1;

@@ -11,8 +11,9 @@ use crate::policy::observation::{CameraView, Observation};
 /// A trained policy acting in lock-step with the simulation.
 pub struct FlowRamActor {
     pub policy: Policy,
-    /// Euler steps, samples (the first is executed), DRS; `seed` is the noise seed of the first
-    /// prediction, the k-th uses `seed + k` (deterministic episodes).
+    /// Euler steps, samples (the first is executed), DRS; `seed` is the noise seed of an
+    /// episode's first keyframe, keyframe k uses `seed + k` (an episode is the same whether run
+    /// alone or as one of many).
     pub options: SamplingOptions,
     /// Wall-clock milliseconds of each prediction, observation to keyframe.
     pub inference_ms: Vec<f64>,
@@ -25,9 +26,9 @@ impl FlowRamActor {
 }
 
 impl KeyframePolicy for FlowRamActor {
-    fn next_keyframe(&mut self, instruction: &str, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
+    fn next_keyframe(&mut self, instruction: &str, k: usize, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
         let observation = policy_observation(instruction, observation)?;
-        let options = SamplingOptions { seed: self.options.seed + self.inference_ms.len() as u64, ..self.options };
+        let options = SamplingOptions { seed: self.options.seed + k as u64, ..self.options };
         let start = Instant::now();
         let poses = self.policy.predict(&observation, &options)?;
         self.inference_ms.push(start.elapsed().as_secs_f64() * 1e3);

@@ -196,7 +196,7 @@ impl CustomOp3 for AdaRmsNormBackward {
             let mut out = vec![0f32; n + c + 2 * n];
             let (grad_x, rest) = out.split_at_mut(n);
             let (grad_w, grad_m) = rest.split_at_mut(c);
-            let partial_w: Vec<f32> = grad_x
+            let partial_w = grad_x
                 .par_chunks_mut(ROWS_PER_TASK * c)
                 .zip(grad_m.par_chunks_mut(ROWS_PER_TASK * 2 * c))
                 .enumerate()
@@ -214,18 +214,24 @@ impl CustomOp3 for AdaRmsNormBackward {
                         gm,
                     )
                 })
-                .reduce(
-                    || vec![0f32; c],
-                    |mut a, b| {
-                        a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
-                        a
-                    },
-                );
+                .collect::<Vec<Vec<f32>>>();
+            let partial_w = sum_in_task_order(&partial_w, c);
             grad_w.copy_from_slice(&partial_w);
             let len = out.len();
             Ok((CpuStorage::F32(out), Shape::from(len)))
         })
     }
+}
+
+/// The sum of per-task partial gradients, added in task order. A rayon `reduce` would add
+/// them in an order that depends on work stealing, so the same step could give different bits
+/// (and `--resume` would no longer continue exactly).
+fn sum_in_task_order(parts: &[Vec<f32>], len: usize) -> Vec<f32> {
+    let mut sum = vec![0f32; len];
+    for part in parts {
+        sum.iter_mut().zip(part).for_each(|(s, p)| *s += p);
+    }
+    sum
 }
 
 simd_kernel! {
@@ -502,13 +508,8 @@ impl CustomOp3 for CausalConvSiluBackward {
                 .map(|(b, task, gx)| {
                     conv_silu_backward_rows(x, xv, &w, bias, grad, b, task * ROWS_PER_TASK, gx)
                 })
-                .reduce(
-                    || vec![0f32; (taps + 1) * di],
-                    |mut a, b| {
-                        a.iter_mut().zip(&b).for_each(|(a, b)| *a += b);
-                        a
-                    },
-                );
+                .collect::<Vec<Vec<f32>>>();
+            let partial = sum_in_task_order(&partial, (taps + 1) * di);
             for d in 0..di {
                 for k in 0..taps {
                     grad_w[d * taps + k] = partial[k * di + d];

@@ -20,24 +20,23 @@ fn main() {
     let deps = std::env::var_os("FLOWRAM_DEPS").map(PathBuf::from).unwrap_or_else(|| root.join(".deps"));
     println!("cargo::rustc-env=FLOWRAM_BUILD_DEPS_DIR={}", deps.display());
 
-    let mujoco_lib = std::env::var_os("MUJOCO_DYNAMIC_LINK_DIR")
-        .map(PathBuf::from)
-        .unwrap_or_else(|| deps.join("mujoco/lib"));
+    let mujoco_lib =
+        std::env::var_os("MUJOCO_DYNAMIC_LINK_DIR").map(PathBuf::from).unwrap_or_else(|| deps.join("mujoco/lib"));
     let pinocchio = std::env::var_os("PINOCCHIO_PREFIX")
         .map(PathBuf::from)
         .unwrap_or_else(|| deps.join("venv/lib/python3.11/site-packages/cmeel.prefix"));
     let missing = [
         (mujoco_lib.join("libmujoco.so"), "MUJOCO_DYNAMIC_LINK_DIR (the folder holding libmujoco.so)"),
-        (pinocchio.join("lib/libpinocchio_default.so"), "PINOCCHIO_PREFIX (the cmeel.prefix holding lib/ and include/)"),
+        (
+            pinocchio.join("lib/libpinocchio_default.so"),
+            "PINOCCHIO_PREFIX (the cmeel.prefix holding lib/ and include/)",
+        ),
         (pinocchio.join("include/eigen3/Eigen/Core"), "PINOCCHIO_PREFIX (Eigen headers from cmeel-eigen)"),
     ];
     let mut ok = true;
     for (file, var) in &missing {
         if !file.is_file() {
-            println!(
-                "cargo::error={} not found. Run scripts/setup.sh first, or set {var}.",
-                file.display()
-            );
+            println!("cargo::error={} not found. Run scripts/setup.sh first, or set {var}.", file.display());
             ok = false;
         }
     }

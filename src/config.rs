@@ -130,17 +130,22 @@ impl ConfigFile {
     pub fn has(&self, field: &str) -> bool {
         let mut value: Option<&toml::Value> = None;
         for (i, part) in field.split('.').enumerate() {
-            value = if i == 0 { self.root.get(part) } else { value.and_then(|v| v.as_table()).and_then(|t| t.get(part)) };
+            value =
+                if i == 0 { self.root.get(part) } else { value.and_then(|v| v.as_table()).and_then(|t| t.get(part)) };
         }
         value.is_some()
     }
 
     /// `field = { values = [..N numbers..], unit = "..." }`, converted to SI.
-    pub fn quantities<const N: usize>(&mut self, field: &str, kind: Quantity, sign: Sign) -> Result<[f64; N], ConfigError> {
+    pub fn quantities<const N: usize>(
+        &mut self,
+        field: &str,
+        kind: Quantity,
+        sign: Sign,
+    ) -> Result<[f64; N], ConfigError> {
         let (values, scale) = self.with_unit(field, "values", kind)?;
-        let array = values
-            .as_array()
-            .ok_or_else(|| self.error(field, format!("`values` must be an array of {N} numbers")))?;
+        let array =
+            values.as_array().ok_or_else(|| self.error(field, format!("`values` must be an array of {N} numbers")))?;
         if array.len() != N {
             return Err(self.error(field, format!("expected {N} values, found {}", array.len())));
         }
@@ -225,9 +230,12 @@ impl ConfigFile {
             (None, _) => return Err(self.error(field, format!("missing `unit` (expected {})", kind.describe()))),
             (Some(u), _) => u.as_str().ok_or_else(|| self.error(field, "`unit` must be a string"))?.trim().to_string(),
         };
-        let scale = kind.units().iter().find(|(u, _)| *u == unit).map(|(_, s)| *s).ok_or_else(|| {
-            self.error(field, format!("wrong unit \"{unit}\": expected {}", kind.describe()))
-        })?;
+        let scale = kind
+            .units()
+            .iter()
+            .find(|(u, _)| *u == unit)
+            .map(|(_, s)| *s)
+            .ok_or_else(|| self.error(field, format!("wrong unit \"{unit}\": expected {}", kind.describe())))?;
         Ok((value, scale))
     }
 

@@ -24,7 +24,12 @@ pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> std::io::Resu
     let name = path.file_name().ok_or_else(|| {
         std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("{} is not a file path", path.display()))
     })?;
-    let tmp = dir.join(format!(".tmp-{}-{}-{}", std::process::id(), COUNTER.fetch_add(1, Ordering::Relaxed), name.to_string_lossy()));
+    let tmp = dir.join(format!(
+        ".tmp-{}-{}-{}",
+        std::process::id(),
+        COUNTER.fetch_add(1, Ordering::Relaxed),
+        name.to_string_lossy()
+    ));
     let result = (|| {
         write(&tmp)?;
         std::fs::File::open(&tmp)?.sync_all()?;
@@ -48,7 +53,8 @@ mod tests {
         write_atomic(&path, b"first").unwrap();
         write_atomic(&path, b"second").unwrap();
         assert_eq!(std::fs::read(&path).unwrap(), b"second");
-        let names: Vec<_> = std::fs::read_dir(path.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> =
+            std::fs::read_dir(path.parent().unwrap()).unwrap().map(|e| e.unwrap().file_name()).collect();
         assert_eq!(names, vec![std::ffi::OsString::from("report.json")]);
     }
 

@@ -51,7 +51,13 @@ fn malformed_mjcf_gives_mujocos_message_and_the_path() {
     assert!(text.contains(&path.display().to_string()), "{text}");
     assert!(text.contains("XML"), "MuJoCo's own parser message is kept: {text}");
 
-    let out = common::flowram().args(["render", "--scene"]).arg(&path).args(["--out"]).arg(dir.path().join("out")).output().unwrap();
+    let out = common::flowram()
+        .args(["render", "--scene"])
+        .arg(&path)
+        .args(["--out"])
+        .arg(dir.path().join("out"))
+        .output()
+        .unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("broken.xml"), "{err}");
 }
@@ -71,7 +77,10 @@ fn unknown_camera_lists_the_valid_ones() {
     let out = common::flowram().args(["render", "--camera", "top", "--out"]).arg(dir.path()).output().unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("front, left_shoulder, right_shoulder, wrist"), "{err}");
-    let out = common::flowram().args(["bench", "render", "--camera", "top", "--frames", "1", "--repeats", "1"]).output().unwrap();
+    let out = common::flowram()
+        .args(["bench", "render", "--camera", "top", "--frames", "1", "--repeats", "1"])
+        .output()
+        .unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("front, left_shoulder, right_shoulder, wrist"), "{err}");
 }
@@ -101,11 +110,23 @@ fn policy_commands_name_what_is_missing() {
     let err = assert_clean_failure(&out);
     assert!(err.contains("no_run") && err.contains("no such folder"), "{err}");
     assert!(!missing.exists(), "a failed predict must not create folders");
-    let out = common::flowram().args(["train", "--data"]).arg(dir.path().join("no_data")).args(["--out"]).arg(dir.path().join("run")).output().unwrap();
+    let out = common::flowram()
+        .args(["train", "--data"])
+        .arg(dir.path().join("no_data"))
+        .args(["--out"])
+        .arg(dir.path().join("run"))
+        .output()
+        .unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("no_data"), "{err}");
     let bad = dir.path().join("bad.toml");
-    std::fs::write(&bad, std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml")).unwrap().replace("semantic_tokens = 1024", "semantic_tokens = 0")).unwrap();
+    std::fs::write(
+        &bad,
+        std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml"))
+            .unwrap()
+            .replace("semantic_tokens = 1024", "semantic_tokens = 0"),
+    )
+    .unwrap();
     let err = flowram::policy::config::PolicyConfig::from_toml_file(&bad).unwrap_err().to_string();
     assert!(err.contains("observation.semantic_tokens") && err.contains("bad.toml"), "{err}");
 }
@@ -116,20 +137,34 @@ fn closed_loop_commands_name_what_is_missing() {
     let out = common::flowram().args(["run", "--task", "open_drawer", "--policy", "flowram"]).output().unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("--checkpoint"), "{err}");
-    let out = common::flowram().args(["run", "--task", "open_drawer", "--checkpoint"]).arg(dir.path()).output().unwrap();
+    let out =
+        common::flowram().args(["run", "--task", "open_drawer", "--checkpoint"]).arg(dir.path()).output().unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("--policy flowram"), "a checkpoint the expert would ignore: {err}");
     let missing = dir.path().join("no_run");
-    let out = common::flowram().args(["bench", "success", "--tasks", "open_drawer", "--checkpoint"]).arg(&missing).output().unwrap();
+    let out = common::flowram()
+        .args(["bench", "success", "--tasks", "open_drawer", "--checkpoint"])
+        .arg(&missing)
+        .output()
+        .unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("no_run") && err.contains("no such folder"), "{err}");
-    let out = common::flowram().args(["bench", "success", "--tasks", "juggle", "--checkpoint"]).arg(&missing).output().unwrap();
+    let out = common::flowram()
+        .args(["bench", "success", "--tasks", "juggle", "--checkpoint"])
+        .arg(&missing)
+        .output()
+        .unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("juggle") && err.contains("open_drawer"), "unknown task named before loading anything: {err}");
-    let out = common::flowram().args(["bench", "success", "--tasks", "open_drawer", "--episodes", "0"]).output().unwrap();
+    let out =
+        common::flowram().args(["bench", "success", "--tasks", "open_drawer", "--episodes", "0"]).output().unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("--episodes"), "{err}");
-    let out = common::flowram().args(["run", "--task", "open_drawer", "--policy", "flowram", "--max-keyframes", "0", "--checkpoint"]).arg(&missing).output().unwrap();
+    let out = common::flowram()
+        .args(["run", "--task", "open_drawer", "--policy", "flowram", "--max-keyframes", "0", "--checkpoint"])
+        .arg(&missing)
+        .output()
+        .unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("--max-keyframes"), "{err}");
 }

@@ -136,9 +136,18 @@ fn cameras_agree_where_they_overlap() {
             }
             if compared >= 200 {
                 let ratio = agree as f64 / compared as f64;
-                assert!(ratio > 0.95, "{} vs {}: only {:.1}% of {compared} shared points agree within 2 mm", a.camera, b.camera, ratio * 100.0);
+                assert!(
+                    ratio > 0.95,
+                    "{} vs {}: only {:.1}% of {compared} shared points agree within 2 mm",
+                    a.camera,
+                    b.camera,
+                    ratio * 100.0
+                );
             } else if a.camera != "wrist" && b.camera != "wrist" {
-                panic!("{} and {} share only {compared} points; the fixed cameras must overlap on the table", a.camera, b.camera);
+                panic!(
+                    "{} and {} share only {compared} points; the fixed cameras must overlap on the table",
+                    a.camera, b.camera
+                );
             }
         }
     }
@@ -195,6 +204,13 @@ fn fast_visuals_change_only_the_robot() {
     // The box and the table are primitives: identical in both.
     let ca = PointCloud::from_frame(&a, None);
     let cb = PointCloud::from_frame(&b, None);
-    let count_box = |c: &PointCloud| c.points.iter().filter(|p| (box_pose().inverse() * p.cast::<f64>()).coords.abs().iter().zip(HALF).all(|(x, h)| *x <= h + 0.005)).count();
+    let count_box = |c: &PointCloud| {
+        c.points
+            .iter()
+            .filter(|p| {
+                (box_pose().inverse() * p.cast::<f64>()).coords.abs().iter().zip(HALF).all(|(x, h)| *x <= h + 0.005)
+            })
+            .count()
+    };
     assert_eq!(count_box(&ca), count_box(&cb));
 }

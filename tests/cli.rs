@@ -20,13 +20,17 @@ fn render_writes_images_clouds_and_camera_models() {
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).expect("--json prints one JSON object");
     assert_eq!(report["cameras"].as_array().unwrap().len(), 4);
     assert!(report["seconds"].as_f64().unwrap() > 0.0);
-    let files: Vec<String> = report["files"].as_array().unwrap().iter().map(|f| f.as_str().unwrap().to_owned()).collect();
+    let files: Vec<String> =
+        report["files"].as_array().unwrap().iter().map(|f| f.as_str().unwrap().to_owned()).collect();
     assert_eq!(files.len(), 4 * 4 + 1, "4 files per camera + merged.ply");
 
     for camera in ["front", "left_shoulder", "right_shoulder", "wrist"] {
         let cam_dir = dir.path().join(camera);
         let (info, rgb) = decode_png(&cam_dir.join("rgb.png"));
-        assert_eq!((info.width, info.height, info.color_type, info.bit_depth), (64, 64, png::ColorType::Rgb, png::BitDepth::Eight));
+        assert_eq!(
+            (info.width, info.height, info.color_type, info.bit_depth),
+            (64, 64, png::ColorType::Rgb, png::BitDepth::Eight)
+        );
         assert!(rgb.iter().any(|&c| c != rgb[0]));
         let (info, depth) = decode_png(&cam_dir.join("depth.png"));
         assert_eq!((info.color_type, info.bit_depth), (png::ColorType::Grayscale, png::BitDepth::Sixteen));
@@ -43,7 +47,8 @@ fn render_writes_images_clouds_and_camera_models() {
         assert_eq!(n, valid.len(), "{camera}: one point per pixel with depth");
         assert_eq!(ply.len() - header_end, n * 15, "{camera}: 3 floats + 3 bytes per point");
 
-        let model: serde_json::Value = serde_json::from_slice(&std::fs::read(cam_dir.join("camera.json")).unwrap()).unwrap();
+        let model: serde_json::Value =
+            serde_json::from_slice(&std::fs::read(cam_dir.join("camera.json")).unwrap()).unwrap();
         assert_eq!(model["intrinsics"][0][2].as_f64(), Some(31.5));
         assert_eq!(model["extrinsics"][3][3].as_f64(), Some(1.0));
     }
@@ -57,7 +62,10 @@ fn benchmarks_print_their_figures_as_json() {
     assert!(sim["steps_per_s"].as_f64().unwrap() > 0.0);
     assert!(sim["realtime_factor"].as_f64().unwrap() > 0.0);
 
-    let out = common::flowram().args(["bench", "render", "--frames", "3", "--repeats", "1", "--size", "32", "--json"]).output().unwrap();
+    let out = common::flowram()
+        .args(["bench", "render", "--frames", "3", "--repeats", "1", "--size", "32", "--json"])
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let render: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(render["size"].as_u64(), Some(32));
@@ -67,7 +75,16 @@ fn benchmarks_print_their_figures_as_json() {
     let out = common::flowram().args(["bench", "control", "--keyframes", "2", "--json"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let control: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    for key in ["tick_us_p50", "tick_us_p99", "tick_us_max", "osc_us_p99", "trajectory_us_p99", "kinematics_us_p99", "ik_ms_median", "realtime_factor"] {
+    for key in [
+        "tick_us_p50",
+        "tick_us_p99",
+        "tick_us_max",
+        "osc_us_p99",
+        "trajectory_us_p99",
+        "kinematics_us_p99",
+        "ik_ms_median",
+        "realtime_factor",
+    ] {
         assert!(control[key].as_f64().is_some_and(|v| v > 0.0), "{key} in {control}");
     }
     assert_eq!(control["keyframes_reached"], 2);
@@ -86,7 +103,13 @@ fn track_reports_keyframes_and_logs_every_tick() {
     )
     .unwrap();
     let log = dir.path().join("run.csv");
-    let out = common::flowram().args(["track", "--json", "--keyframes"]).arg(&keyframes).arg("--log").arg(&log).output().unwrap();
+    let out = common::flowram()
+        .args(["track", "--json", "--keyframes"])
+        .arg(&keyframes)
+        .arg("--log")
+        .arg(&log)
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let k = report["keyframes"].as_array().unwrap();
@@ -131,7 +154,9 @@ fn bad_keyframe_files_get_clear_errors() {
     assert!(run(None).contains("cannot read the keyframes file"));
     let err = run(Some("{\"keyframes\": [ {\"position\": [0.4, 0.0]} ]}"));
     assert!(err.contains("quat_wxyz") && err.contains("expected"), "{err}");
-    let err = run(Some("{\"keyframes\": [{\"position\":[0.4,0,0.4],\"quat_wxyz\":[0,1,0,0],\"gripper_open\":true,\"speed\":2}]}"));
+    let err = run(Some(
+        "{\"keyframes\": [{\"position\":[0.4,0,0.4],\"quat_wxyz\":[0,1,0,0],\"gripper_open\":true,\"speed\":2}]}",
+    ));
     assert!(err.contains("speed"), "{err}");
     assert!(run(Some("{\"keyframes\": []}")).contains("no keyframes"));
     let out = common::flowram().args(["tune", "--step", "0.1,0"]).output().unwrap();
@@ -143,7 +168,11 @@ fn bad_keyframe_files_get_clear_errors() {
 fn tune_measures_a_step_and_plots_it() {
     let dir = tempfile::tempdir().unwrap();
     let plot = dir.path().join("step.png");
-    let out = common::flowram().args(["tune", "--step", "0.05,0,0", "--duration", "1.0", "--json", "--plot"]).arg(&plot).output().unwrap();
+    let out = common::flowram()
+        .args(["tune", "--step", "0.05,0,0", "--duration", "1.0", "--json", "--plot"])
+        .arg(&plot)
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in ["rise_time_s", "overshoot_pct", "settling_time_s", "steady_state_error_mm", "peak_torque_ratio"] {
@@ -157,7 +186,11 @@ fn tune_measures_a_step_and_plots_it() {
 fn run_and_collect_write_what_they_report() {
     let dir = tempfile::tempdir().unwrap();
     let gif = dir.path().join("episode.gif");
-    let out = common::flowram().args(["run", "--task", "push_buttons", "--seed", "1", "--json", "--video"]).arg(&gif).output().unwrap();
+    let out = common::flowram()
+        .args(["run", "--task", "push_buttons", "--seed", "1", "--json", "--video"])
+        .arg(&gif)
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let r: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(r["task"], "push_buttons");
@@ -169,7 +202,21 @@ fn run_and_collect_write_what_they_report() {
 
     let data = dir.path().join("data");
     let out = common::flowram()
-        .args(["collect", "--task", "push_buttons", "--episodes", "2", "--seed", "5", "--cameras", "front,wrist", "--size", "64", "--json", "--out"])
+        .args([
+            "collect",
+            "--task",
+            "push_buttons",
+            "--episodes",
+            "2",
+            "--seed",
+            "5",
+            "--cameras",
+            "front,wrist",
+            "--size",
+            "64",
+            "--json",
+            "--out",
+        ])
         .arg(&data)
         .output()
         .unwrap();
@@ -188,7 +235,11 @@ fn run_and_collect_write_what_they_report() {
     let out = common::flowram().args(["run", "--task", "open_drawer", "--variation", "7"]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("out of range"), "{}", String::from_utf8_lossy(&out.stderr));
-    let out = common::flowram().args(["collect", "--task", "push_buttons", "--episodes", "1", "--cameras", "top", "--out"]).arg(dir.path().join("none")).output().unwrap();
+    let out = common::flowram()
+        .args(["collect", "--task", "push_buttons", "--episodes", "1", "--cameras", "top", "--out"])
+        .arg(dir.path().join("none"))
+        .output()
+        .unwrap();
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("front, left_shoulder, right_shoulder, wrist") && !err.contains("panicked"), "{err}");

@@ -20,7 +20,12 @@ struct Replay {
 }
 
 impl KeyframePolicy for Replay {
-    fn next_keyframe(&mut self, _instruction: &str, k: usize, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
+    fn next_keyframe(
+        &mut self,
+        _instruction: &str,
+        k: usize,
+        observation: &KeyframeObservation,
+    ) -> Result<Keyframe, TaskError> {
         assert_eq!(k, self.seen.len(), "keyframes are asked for in order");
         self.seen.push(observation.proprio);
         let a = self.keyframes.get(k).ok_or_else(|| TaskError::Config(format!("no recorded keyframe {k}")))?;
@@ -42,7 +47,8 @@ fn expert_keyframes_replayed_through_the_policy_loop_succeed_and_stop_there() {
     let mut rig = CameraRig::new(&world, 32, Visuals::Fast).unwrap();
     let mut observer = Observer { rig: &mut rig, cameras: vec![0] };
     // more keyframes allowed than recorded: the loop must stop at success, not ask for more
-    let result = run_policy_episode(task.as_ref(), &mut world, 3, 7, &mut replay, &mut observer, expert.keyframes + 3).unwrap();
+    let result =
+        run_policy_episode(task.as_ref(), &mut world, 3, 7, &mut replay, &mut observer, expert.keyframes + 3).unwrap();
     assert!(result.success, "problems: {:?}", result.problems);
     // the expert's last keyframe retreats after the last press: the loop stops before it
     assert_eq!(result.keyframes, expert.keyframes - 1);

@@ -22,7 +22,8 @@ fn shipped_profiles_load() {
     assert!((c.reached_orientation - 0.5f64.to_radians()).abs() < 1e-12, "deg converted to rad");
     assert!((c.reached_position - 0.001).abs() < 1e-12, "mm converted to m");
     assert_eq!(c.time_limit, 0.0, "no wall-clock limit in the shipped (simulation) profile");
-    let real_time = osc_text().replace("time_limit = { value = 0.0, unit = \"us\" }", "time_limit = { value = 500.0, unit = \"us\" }");
+    let real_time = osc_text()
+        .replace("time_limit = { value = 0.0, unit = \"us\" }", "time_limit = { value = 500.0, unit = \"us\" }");
     let c = OscConfig::from_config(ConfigFile::parse(Path::new("osc.toml"), &real_time).unwrap()).unwrap();
     assert!((c.time_limit - 500e-6).abs() < 1e-12, "us converted to s");
     let l = JointLimits::panda().unwrap();
@@ -32,7 +33,11 @@ fn shipped_profiles_load() {
 
 #[test]
 fn negative_gain_names_the_field() {
-    let text = osc_text().replacen("stiffness = { values = [900.0, 900.0, 900.0], unit = \"1/s^2\" }", "stiffness = { values = [900.0, -900.0, 900.0], unit = \"1/s^2\" }", 1);
+    let text = osc_text().replacen(
+        "stiffness = { values = [900.0, 900.0, 900.0], unit = \"1/s^2\" }",
+        "stiffness = { values = [900.0, -900.0, 900.0], unit = \"1/s^2\" }",
+        1,
+    );
     let err = osc_error(&text);
     assert!(err.contains("task.position.stiffness") && err.contains("negative"), "{err}");
 }
@@ -48,8 +53,12 @@ fn missing_field_names_the_field() {
 fn wrong_unit_names_the_field_and_the_expected_units() {
     let text = osc_text().replacen("unit = \"1/s^2\"", "unit = \"N/m\"", 1);
     let err = osc_error(&text);
-    assert!(err.contains("task.position.stiffness") && err.contains("wrong unit \"N/m\"") && err.contains("1/s^2"), "{err}");
-    let text = osc_text().replace("position = { value = 1.0, unit = \"mm\" }", "position = { value = 1.0, unit = \"deg\" }");
+    assert!(
+        err.contains("task.position.stiffness") && err.contains("wrong unit \"N/m\"") && err.contains("1/s^2"),
+        "{err}"
+    );
+    let text =
+        osc_text().replace("position = { value = 1.0, unit = \"mm\" }", "position = { value = 1.0, unit = \"deg\" }");
     let err = osc_error(&text);
     assert!(err.contains("reached.position") && err.contains("\"m\""), "{err}");
     let text = osc_text().replace("position = { value = 1.0, unit = \"mm\" }", "position = 1.0");
@@ -72,7 +81,9 @@ fn limits_file_is_validated_and_converted() {
     let path = controllers_dir().join("panda_limits.toml");
     let text = std::fs::read_to_string(&path).unwrap();
     let parse = |t: &str| JointLimits::from_config(ConfigFile::parse(&path, t).unwrap());
-    let err = parse(&text.replace("velocity = { values = [2.1750", "velocity = { values = [-2.1750")).unwrap_err().to_string();
+    let err = parse(&text.replace("velocity = { values = [2.1750", "velocity = { values = [-2.1750"))
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("joint.velocity") && err.contains("> 0"), "{err}");
     let err = parse(&text.replace("unit = \"Nm/s\"", "unit = \"Nm\"")).unwrap_err().to_string();
     assert!(err.contains("joint.torque_rate") && err.contains("wrong unit"), "{err}");

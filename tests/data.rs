@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use flowram::data::{
-    load_dataset, read_episode, read_index, write_episode, DataError, Dataset, Episode, DATASET_FORMAT, EPISODE_FORMAT,
+    DATASET_FORMAT, DataError, Dataset, EPISODE_FORMAT, Episode, load_dataset, read_episode, read_index, write_episode,
 };
 use rand::rngs::StdRng;
 use rand::{Rng, SeedableRng};
@@ -77,7 +77,11 @@ fn round_trip_keeps_every_value_and_the_index() {
     let fourth = writer.append(&episode(7, 1)).unwrap();
     assert!(fourth.ends_with("episode_00003.safetensors"));
     assert_eq!(read_index(dir.path()).unwrap().episodes.len(), 4);
-    let stray: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).filter(|n| n.to_string_lossy().ends_with(".tmp")).collect();
+    let stray: Vec<_> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name())
+        .filter(|n| n.to_string_lossy().ends_with(".tmp"))
+        .collect();
     assert!(stray.is_empty(), "{stray:?}");
 }
 
@@ -92,7 +96,10 @@ fn truncated_file_is_named_and_the_rest_still_loads() {
     assert!(matches!(err, DataError::Truncated { .. }), "{err:?}");
     let msg = err.to_string();
     assert!(msg.contains("episode_00001.safetensors") && msg.contains("truncated"), "{msg}");
-    assert!(msg.contains(&format!("file has {}", bytes.len() / 2)) && msg.contains(&format!("header says {}", bytes.len())), "{msg}");
+    assert!(
+        msg.contains(&format!("file has {}", bytes.len() / 2)) && msg.contains(&format!("header says {}", bytes.len())),
+        "{msg}"
+    );
 
     let loaded = load_dataset(dir.path()).unwrap();
     assert_eq!(loaded.episodes, vec![episodes[0].clone(), episodes[2].clone()]);
@@ -138,7 +145,10 @@ fn corrupted_header_gives_a_clear_error() {
 
 /// Writes a safetensors file from (name, dtype, shape, bytes) with the given metadata.
 fn raw_file(path: &Path, tensors: &[(&str, safetensors::Dtype, Vec<usize>, Vec<u8>)], meta: Option<Vec<(&str, &str)>>) {
-    let views: Vec<_> = tensors.iter().map(|(n, d, s, b)| (*n, safetensors::tensor::TensorView::new(*d, s.clone(), b).unwrap())).collect();
+    let views: Vec<_> = tensors
+        .iter()
+        .map(|(n, d, s, b)| (*n, safetensors::tensor::TensorView::new(*d, s.clone(), b).unwrap()))
+        .collect();
     let meta = meta.map(|m| m.into_iter().map(|(k, v)| (k.to_string(), v.to_string())).collect());
     std::fs::write(path, safetensors::serialize(views, meta).unwrap()).unwrap();
 }
@@ -146,9 +156,18 @@ fn raw_file(path: &Path, tensors: &[(&str, safetensors::Dtype, Vec<usize>, Vec<u
 fn valid_tensors(k: usize) -> Vec<(&'static str, safetensors::Dtype, Vec<usize>, Vec<u8>)> {
     use safetensors::Dtype::{F32, U8};
     let c = cameras().len();
-    let f = |shape: Vec<usize>| -> (Vec<usize>, Vec<u8>) { let n: usize = shape.iter().product(); (shape, vec![0; n * 4]) };
+    let f = |shape: Vec<usize>| -> (Vec<usize>, Vec<u8>) {
+        let n: usize = shape.iter().product();
+        (shape, vec![0; n * 4])
+    };
     let mut out = vec![("rgb", U8, vec![k, c, H, W, 3], vec![0u8; k * c * H * W * 3])];
-    for (name, shape) in [("depth", vec![k, c, H, W]), ("intrinsics", vec![c, 3, 3]), ("extrinsics", vec![k, c, 4, 4]), ("proprio", vec![k, 8]), ("action", vec![k, 8])] {
+    for (name, shape) in [
+        ("depth", vec![k, c, H, W]),
+        ("intrinsics", vec![c, 3, 3]),
+        ("extrinsics", vec![k, c, 4, 4]),
+        ("proprio", vec![k, 8]),
+        ("action", vec![k, 8]),
+    ] {
         let (shape, bytes) = f(shape);
         out.push((name, F32, shape, bytes));
     }
@@ -156,7 +175,15 @@ fn valid_tensors(k: usize) -> Vec<(&'static str, safetensors::Dtype, Vec<usize>,
 }
 
 fn valid_meta() -> Vec<(&'static str, &'static str)> {
-    vec![("format", EPISODE_FORMAT), ("task", TASK), ("variation", "3"), ("instruction", "x"), ("seed", "9"), ("cameras", r#"["front","wrist"]"#), ("success", "true")]
+    vec![
+        ("format", EPISODE_FORMAT),
+        ("task", TASK),
+        ("variation", "3"),
+        ("instruction", "x"),
+        ("seed", "9"),
+        ("cameras", r#"["front","wrist"]"#),
+        ("success", "true"),
+    ]
 }
 
 #[test]
@@ -225,9 +252,19 @@ fn mixing_tasks_cameras_or_sizes_is_refused() {
 
     let err = Dataset::create_or_open(dir.path(), "close_jar", &cameras(), [H, W]).unwrap_err();
     let msg = err.to_string();
-    assert!(matches!(err, DataError::Mismatch { .. }) && msg.contains("open_drawer") && msg.contains("close_jar"), "{msg}");
-    assert!(Dataset::create_or_open(dir.path(), TASK, &cameras()[..1], [H, W]).unwrap_err().to_string().contains("camera"));
-    assert!(Dataset::create_or_open(dir.path(), TASK, &cameras(), [H, W + 1]).unwrap_err().to_string().contains("image size"));
+    assert!(
+        matches!(err, DataError::Mismatch { .. }) && msg.contains("open_drawer") && msg.contains("close_jar"),
+        "{msg}"
+    );
+    assert!(
+        Dataset::create_or_open(dir.path(), TASK, &cameras()[..1], [H, W]).unwrap_err().to_string().contains("camera")
+    );
+    assert!(
+        Dataset::create_or_open(dir.path(), TASK, &cameras(), [H, W + 1])
+            .unwrap_err()
+            .to_string()
+            .contains("image size")
+    );
 
     let mut writer = Dataset::create_or_open(dir.path(), TASK, &cameras(), [H, W]).unwrap();
     let mut other = episode(5, 2);
@@ -245,7 +282,9 @@ fn malformed_index_is_an_error_naming_it() {
     std::fs::write(&index, b"{\"format\": \"flowram-dataset-v1\", \"task\": ").unwrap();
     let msg = load_dataset(dir.path()).unwrap_err().to_string();
     assert!(msg.contains("index.json"), "{msg}");
-    assert!(Dataset::create_or_open(dir.path(), TASK, &cameras(), [H, W]).unwrap_err().to_string().contains("index.json"));
+    assert!(
+        Dataset::create_or_open(dir.path(), TASK, &cameras(), [H, W]).unwrap_err().to_string().contains("index.json")
+    );
 
     std::fs::remove_file(&index).unwrap();
     let msg = load_dataset(dir.path()).unwrap_err().to_string();
@@ -276,12 +315,14 @@ fn bytes_on_disk_follow_the_safetensors_layout() {
         let info = &header[name];
         assert_eq!(info["dtype"], dtype, "{name}");
         assert_eq!(info["shape"], serde_json::json!(shape), "{name}");
-        let (start, end) = (info["data_offsets"][0].as_u64().unwrap() as usize, info["data_offsets"][1].as_u64().unwrap() as usize);
+        let (start, end) =
+            (info["data_offsets"][0].as_u64().unwrap() as usize, info["data_offsets"][1].as_u64().unwrap() as usize);
         let size = if dtype == "U8" { 1 } else { 4 };
         assert_eq!(end - start, shape.iter().product::<usize>() * size, "{name}");
         total += end - start;
         if name == "proprio" {
-            let values: Vec<f32> = data[start..end].chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
+            let values: Vec<f32> =
+                data[start..end].chunks_exact(4).map(|b| f32::from_le_bytes(b.try_into().unwrap())).collect();
             assert_eq!(values, e.proprio, "little-endian f32, C order");
         }
         if name == "rgb" {

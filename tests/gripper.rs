@@ -9,7 +9,14 @@ use flowram::sim::World;
 
 fn close_at_home(world: &mut World) -> String {
     let limits = JointLimits::panda().unwrap();
-    let mut runner = Runner::build(&world.arm_description().unwrap(), limits, OscConfig::default_profile().unwrap(), &world.read_state(), world.timestep()).unwrap();
+    let mut runner = Runner::build(
+        &world.arm_description().unwrap(),
+        limits,
+        OscConfig::default_profile().unwrap(),
+        &world.read_state(),
+        world.timestep(),
+    )
+    .unwrap();
     let home = world.arm_state().tcp_in_base;
     let report = runner.run(world, &[Keyframe::at(&home, false)]).unwrap();
     assert_eq!(report.limit_violations, 0);
@@ -19,7 +26,9 @@ fn close_at_home(world: &mut World) -> String {
 #[test]
 fn closing_on_a_block_is_a_grasp() {
     // A fixed 3 cm block where the fingertips meet at the home pose (TCP at world 0.307, 0, 1.237).
-    let scene = common::scene_with(r#"<body name="block" pos="0.30689 0 1.2369"><geom type="box" size="0.012 0.015 0.012" rgba="0.2 0.8 0.2 1"/></body>"#);
+    let scene = common::scene_with(
+        r#"<body name="block" pos="0.30689 0 1.2369"><geom type="box" size="0.012 0.015 0.012" rgba="0.2 0.8 0.2 1"/></body>"#,
+    );
     let mut world = common::load(&scene);
     let outcome = close_at_home(&mut world);
     assert!(outcome.starts_with("grasped"), "{outcome}");

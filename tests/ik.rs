@@ -21,7 +21,9 @@ fn solves_at_least_99_percent_of_random_reachable_poses() {
     let home = ik.config.neutral;
     let (mut solved, mut worst_p, mut worst_r) = (0, 0f64, 0f64);
     for _ in 0..1000 {
-        let q = JointVector::from_fn(|i, _| rng.random_range(limits.position_min[i] + margin..limits.position_max[i] - margin));
+        let q = JointVector::from_fn(|i, _| {
+            rng.random_range(limits.position_min[i] + margin..limits.position_max[i] - margin)
+        });
         let target = kin.tcp(&q).unwrap();
         if let Ok(s) = ik.solve(&mut kin, &target, &home) {
             // Check independently of the solver's own report.

@@ -10,7 +10,10 @@ use flowram::policy::observation::Observation;
 use flowram::policy::text::TextEncoder;
 use flowram::policy::train::{StepLoss, TrainProgress, Trainer, TrainingData, train};
 use flowram::sim::{CameraRig, Visuals};
-use flowram::tasks::{self, episode::{Actor, Observer, run_episode}};
+use flowram::tasks::{
+    self,
+    episode::{Actor, Observer, run_episode},
+};
 
 fn text() -> TextEncoder {
     // the binary's allocator settings (training steps twice as fast; see policy::runtime)
@@ -38,7 +41,8 @@ fn tiny_config() -> PolicyConfig {
     let mut c = PolicyConfig::cpu_default().unwrap();
     c.observation.image_size = 64;
     // push_buttons' part of the table: a tighter box makes a normalised error fewer millimetres.
-    c.observation.workspace = flowram::policy::geometry::WorkspaceBounds::new([0.15, -0.35, 0.74], [0.85, 0.35, 1.14]).unwrap();
+    c.observation.workspace =
+        flowram::policy::geometry::WorkspaceBounds::new([0.15, -0.35, 0.74], [0.85, 0.35, 1.14]).unwrap();
     c.observation.semantic_tokens = 128;
     c.observation.geometric_tokens = 32;
     c.observation.min_inside = 8;
@@ -88,7 +92,8 @@ fn overfits_a_handful_of_keyframes() {
     for k in 0..keyframes {
         let observation = Observation::from_episode(&episode, k).unwrap();
         let target = Observation::episode_action(&episode, k);
-        let predicted = policy.predict(&observation, &SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0 }).unwrap()[0];
+        let predicted =
+            policy.predict(&observation, &SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0 }).unwrap()[0];
         let (p, r) = predicted.error_to(&target);
         assert!(p < 0.01 && r < 5f32.to_radians(), "keyframe {k}: {:.1} mm, {:.1} deg off", p * 1e3, r.to_degrees());
         assert_eq!(predicted.gripper_open, target.gripper_open, "keyframe {k}");
@@ -110,11 +115,16 @@ fn checkpoint_round_trip_and_truncation() {
     let a = Policy::load(run.path(), text).unwrap().predict_once(&observation, &options);
     let b = Policy::load(run.path(), self::text()).unwrap().predict_once(&observation, &options);
     assert_eq!(a, b, "same checkpoint and noise seed, same prediction");
-    let other = Policy::load(run.path(), self::text()).unwrap().predict_once(&observation, &SamplingOptions { seed: 8, ..options });
+    let other = Policy::load(run.path(), self::text())
+        .unwrap()
+        .predict_once(&observation, &SamplingOptions { seed: 8, ..options });
     assert_ne!(a, other, "another noise seed gives other samples");
 
     // A new run refuses to overwrite, and a truncated checkpoint is named.
-    let err = train(run.path(), Some(&config), &mut data, &mut self::text(), false, None, &mut Quiet).err().unwrap().to_string();
+    let err = train(run.path(), Some(&config), &mut data, &mut self::text(), false, None, &mut Quiet)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(err.contains("--resume"), "{err}");
     let step = run.path().join("checkpoints/step-000000003");
     let model = step.join("ema.safetensors");
@@ -153,7 +163,17 @@ impl PredictOnce for Policy {
         self.predict(observation, options)
             .unwrap()
             .iter()
-            .map(|k| [k.position[0], k.position[1], k.position[2], k.quat_wxyz[0], k.quat_wxyz[1], k.quat_wxyz[2], k.quat_wxyz[3]])
+            .map(|k| {
+                [
+                    k.position[0],
+                    k.position[1],
+                    k.position[2],
+                    k.quat_wxyz[0],
+                    k.quat_wxyz[1],
+                    k.quat_wxyz[2],
+                    k.quat_wxyz[3],
+                ]
+            })
             .collect()
     }
 }

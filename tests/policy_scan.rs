@@ -3,10 +3,8 @@
 #[path = "policy_reference/mod.rs"]
 mod common;
 use candle_core::{DType, Device, Tensor, Var};
-use common::{normal, rel_err, tensor, TestResult};
-use flowram::policy::scan::{
-    selective_scan, selective_scan_with_state, selective_scan_with_state_gated, ScanInputs,
-};
+use common::{TestResult, normal, rel_err, tensor};
+use flowram::policy::scan::{ScanInputs, selective_scan, selective_scan_with_state, selective_scan_with_state_gated};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -26,19 +24,13 @@ impl Case {
         let var = |t: Tensor| Var::from_tensor(&t).expect("var");
         Self {
             u: var(tensor(&mut rng, &[batch, seq_len, d_inner], normal)),
-            delta_raw: var(tensor(&mut rng, &[batch, seq_len, d_inner], |r| {
-                normal(r) * 1.5
-            })),
+            delta_raw: var(tensor(&mut rng, &[batch, seq_len, d_inner], |r| normal(r) * 1.5)),
             b: var(tensor(&mut rng, &[batch, seq_len, d_state], normal)),
             c: var(tensor(&mut rng, &[batch, seq_len, d_state], normal)),
             // A = -exp(A_log) with A_log around log(1..N)
-            a: var(tensor(&mut rng, &[d_inner, d_state], |r| {
-                -r.random_range(0.05f32..8.0)
-            })),
+            a: var(tensor(&mut rng, &[d_inner, d_state], |r| -r.random_range(0.05f32..8.0))),
             d: var(tensor(&mut rng, &[d_inner], normal)),
-            delta_bias: var(tensor(&mut rng, &[d_inner], |r| {
-                r.random_range(-5.0f32..0.5)
-            })),
+            delta_bias: var(tensor(&mut rng, &[d_inner], |r| r.random_range(-5.0f32..0.5))),
         }
     }
 
@@ -71,13 +63,7 @@ fn reference_scan(x: &ScanInputs, h0: Option<&Tensor>) -> candle_core::Result<(T
     common::reference_scan(x.u, x.delta_raw, x.b, x.c, x.a, x.d, x.delta_bias, h0)
 }
 
-fn check_forward_backward(
-    seed: u64,
-    batch: usize,
-    seq_len: usize,
-    d_inner: usize,
-    d_state: usize,
-) -> TestResult {
+fn check_forward_backward(seed: u64, batch: usize, seq_len: usize, d_inner: usize, d_state: usize) -> TestResult {
     let case = Case::random(seed, batch, seq_len, d_inner, d_state);
     let x = case.inputs();
     let mut rng = ChaCha8Rng::seed_from_u64(seed + 1000);
@@ -94,9 +80,7 @@ fn check_forward_backward(
     let grads_ref = (&y_ref * &weight)?.sum_all()?.backward()?;
     for (name, var) in case.vars() {
         let g = grads.get(var).ok_or(format!("no gradient for {name}"))?;
-        let g_ref = grads_ref
-            .get(var)
-            .ok_or(format!("no reference gradient for {name}"))?;
+        let g_ref = grads_ref.get(var).ok_or(format!("no reference gradient for {name}"))?;
         assert_eq!(g.dims(), g_ref.dims(), "{name}");
         let err = rel_err(g, g_ref);
         println!("  d/d{name}: rel err {err:.2e}");
@@ -141,13 +125,7 @@ fn prefix_then_suffix_equals_whole_sequence() -> TestResult {
         ])
     };
     fn sub<'a>(x: &ScanInputs<'a>, p: &'a [Tensor; 4]) -> ScanInputs<'a> {
-        ScanInputs {
-            u: &p[0],
-            delta_raw: &p[1],
-            b: &p[2],
-            c: &p[3],
-            ..*x
-        }
+        ScanInputs { u: &p[0], delta_raw: &p[1], b: &p[2], c: &p[3], ..*x }
     }
     let (y_all, h_all) = selective_scan_with_state(&x, None)?;
     let prefix = part(0, split)?;
@@ -173,11 +151,7 @@ fn prefix_then_suffix_equals_whole_sequence() -> TestResult {
     assert!(rel_err(&h_suffix, &h_ref) < 1e-4);
 
     // The fused output gate: y * SiLU(z).
-    let z = (tensor(
-        &mut ChaCha8Rng::seed_from_u64(55),
-        &[batch, seq_len - split, d_inner],
-        normal,
-    ) * 3.0)?;
+    let z = (tensor(&mut ChaCha8Rng::seed_from_u64(55), &[batch, seq_len - split, d_inner], normal) * 3.0)?;
     let (gated, h_gated) = selective_scan_with_state_gated(&sub(&x, &suffix), Some(&h_prefix), &z)?;
     let want = (&y_ref * (&z * candle_nn::ops::sigmoid(&z)?)?)?;
     let err = rel_err(&gated, &want);
@@ -190,10 +164,7 @@ fn prefix_then_suffix_equals_whole_sequence() -> TestResult {
 fn bad_shapes_are_rejected() {
     let case = Case::random(6, 1, 4, 8, 4);
     let wrong = Tensor::zeros((1, 4, 5), DType::F32, &Device::Cpu).expect("zeros");
-    let x = ScanInputs {
-        b: &wrong,
-        ..case.inputs()
-    };
+    let x = ScanInputs { b: &wrong, ..case.inputs() };
     let err = selective_scan(&x).expect_err("mismatched B must be rejected");
     assert!(err.to_string().contains("B must have shape"), "{err}");
 }

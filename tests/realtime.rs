@@ -39,7 +39,14 @@ static GLOBAL: Counting = Counting;
 fn control_ticks_do_not_allocate() {
     let mut world = World::load_named("default").unwrap();
     let limits = JointLimits::panda().unwrap();
-    let mut runner = Runner::build(&world.arm_description().unwrap(), limits, OscConfig::default_profile().unwrap(), &world.read_state(), world.timestep()).unwrap();
+    let mut runner = Runner::build(
+        &world.arm_description().unwrap(),
+        limits,
+        OscConfig::default_profile().unwrap(),
+        &world.read_state(),
+        world.timestep(),
+    )
+    .unwrap();
     let home = world.arm_state().tcp_in_base;
     let target = Translation3::new(0.1, -0.1, -0.05) * home * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3);
     let goal = runner.ik.solve(runner.controller.kinematics_mut(), &target, &world.read_state().q).unwrap().q;

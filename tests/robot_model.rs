@@ -19,7 +19,9 @@ fn pinocchio_and_mujoco_agree_over_random_configurations() {
         let mj = world.arm_dynamics_reference();
         let pin = kin.dynamics(&q, &dq).unwrap();
         let task = kin.task(&q, &dq).unwrap();
-        assert!((task.jacobian - pin.jacobian).abs().max() < 1e-12 && (task.jdot_qdot - pin.jdot_qdot).abs().max() < 1e-12);
+        assert!(
+            (task.jacobian - pin.jacobian).abs().max() < 1e-12 && (task.jdot_qdot - pin.jdot_qdot).abs().max() < 1e-12
+        );
         assert!((task.tcp.translation.vector - pin.tcp.translation.vector).norm() < 1e-12);
         worst_pos = worst_pos.max((pin.tcp.translation.vector - mj.tcp_in_base.translation.vector).norm());
         worst_rot = worst_rot.max(pin.tcp.rotation.angle_to(&mj.tcp_in_base.rotation));

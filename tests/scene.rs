@@ -83,7 +83,9 @@ fn named_postures_and_unknown_names() {
     world.reset_to("ready").unwrap();
     assert!((world.arm_state().q[3] + 2.2).abs() < 1e-12);
     match world.reset_to("nowhere") {
-        Err(SimError::UnknownName { valid, .. }) => assert!(valid.contains("home") && valid.contains("ready"), "{valid}"),
+        Err(SimError::UnknownName { valid, .. }) => {
+            assert!(valid.contains("home") && valid.contains("ready"), "{valid}")
+        }
         other => panic!("expected UnknownName, got {other:?}"),
     }
     let bad = JointVector::repeat(f64::NAN);
@@ -116,10 +118,8 @@ fn object_poses_read_and_set() {
         r#"<body name="cube" pos="0.5 0 0.8"><freejoint/><geom type="box" size="0.02 0.02 0.02" mass="0.1"/></body>"#,
     );
     let mut world = common::load(&scene);
-    let pose = Isometry3::from_parts(
-        Translation3::new(0.4, -0.1, 0.9),
-        UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7),
-    );
+    let pose =
+        Isometry3::from_parts(Translation3::new(0.4, -0.1, 0.9), UnitQuaternion::from_euler_angles(0.1, -0.2, 0.7));
     world.set_body_pose("cube", &pose).unwrap();
     let read = world.body_pose("cube").unwrap();
     assert!((read.translation.vector - pose.translation.vector).norm() < 1e-12);

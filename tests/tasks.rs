@@ -15,7 +15,11 @@ fn instructions_follow_the_templates() {
     let drawers = tasks::by_name("open_drawer").unwrap();
     assert_eq!(drawers.variation_count(), 3);
     for v in 0..3 {
-        assert!(matches_template(&drawers.instruction(v), "open the _ drawer", &["left", "middle", "right"]), "{}", drawers.instruction(v));
+        assert!(
+            matches_template(&drawers.instruction(v), "open the _ drawer", &["left", "middle", "right"]),
+            "{}",
+            drawers.instruction(v)
+        );
     }
     let buttons = tasks::by_name("push_buttons").unwrap();
     assert_eq!(buttons.variation_count(), 50);
@@ -32,12 +36,17 @@ fn instructions_follow_the_templates() {
     assert!((0..20).all(|v| matches_template(&jars.instruction(v), "close the _ jar", &colors)));
     let slide = tasks::by_name("slide_block").unwrap();
     assert_eq!(slide.variation_count(), 4);
-    assert!((0..4).all(|v| matches_template(&slide.instruction(v), "slide the block to _ target", &["green", "blue", "pink", "yellow"])));
+    assert!((0..4).all(|v| matches_template(
+        &slide.instruction(v),
+        "slide the block to _ target",
+        &["green", "blue", "pink", "yellow"]
+    )));
     let stack = tasks::by_name("stack_blocks").unwrap();
     assert_eq!(stack.variation_count(), 60);
     for v in 0..60 {
         let text = stack.instruction(v);
-        let rest = text.strip_prefix("stack ").and_then(|r| r.strip_suffix(" blocks")).unwrap_or_else(|| panic!("{text}"));
+        let rest =
+            text.strip_prefix("stack ").and_then(|r| r.strip_suffix(" blocks")).unwrap_or_else(|| panic!("{text}"));
         let (count, colour) = rest.split_once(' ').unwrap();
         assert!(["2", "3", "4"].contains(&count) && colors.contains(&colour), "{text}");
     }
@@ -111,10 +120,18 @@ fn recorded_actions_are_the_poses_the_arm_reached() {
         let dp = ((a[0] - r[0]).powi(2) + (a[1] - r[1]).powi(2) + (a[2] - r[2]).powi(2)).sqrt();
         let dot = (a[3] * r[3] + a[4] * r[4] + a[5] * r[5] + a[6] * r[6]).abs().min(1.0);
         let angle = 2.0 * dot.acos();
-        assert!(dp <= 1.5e-3 && angle <= 0.5f32.to_radians() * 1.5, "keyframe {i}: reached {dp} m / {angle} rad from the recorded action");
+        assert!(
+            dp <= 1.5e-3 && angle <= 0.5f32.to_radians() * 1.5,
+            "keyframe {i}: reached {dp} m / {angle} rad from the recorded action"
+        );
         assert_eq!(a[7], r[7], "gripper state of keyframe {i}");
         if i + 1 < k {
-            assert_eq!(&result.observations[i + 1].proprio, r, "observation {} is the state keyframe {i} reached", i + 1);
+            assert_eq!(
+                &result.observations[i + 1].proprio,
+                r,
+                "observation {} is the state keyframe {i} reached",
+                i + 1
+            );
         }
     }
     let episode = result.to_dataset_episode().unwrap();

@@ -11,7 +11,9 @@ use nalgebra::{Translation3, UnitQuaternion, Vector3};
 fn stack(world: &World) -> (Runner, JointLimits) {
     let limits = JointLimits::panda().unwrap();
     let config = OscConfig::default_profile().unwrap();
-    let mut runner = Runner::build(&world.arm_description().unwrap(), limits, config, &world.read_state(), world.timestep()).unwrap();
+    let mut runner =
+        Runner::build(&world.arm_description().unwrap(), limits, config, &world.read_state(), world.timestep())
+            .unwrap();
     runner.enable_log(60.0, world.timestep());
     (runner, limits)
 }
@@ -23,10 +25,17 @@ fn assert_log_within_limits(log: &[LogRow], limits: &JointLimits, dt: f64) {
         for i in 0..7 {
             assert!(row.tau[i].abs() <= limits.torque[i] + 1e-9, "tick {k}: joint {i} torque {}", row.tau[i]);
             assert!(row.dq[i].abs() <= limits.velocity[i], "tick {k}: joint {i} velocity {}", row.dq[i]);
-            assert!(row.q[i] >= limits.position_min[i] && row.q[i] <= limits.position_max[i], "tick {k}: joint {i} position {}", row.q[i]);
+            assert!(
+                row.q[i] >= limits.position_min[i] && row.q[i] <= limits.position_max[i],
+                "tick {k}: joint {i} position {}",
+                row.q[i]
+            );
             if k > 0 {
                 let rate = (row.tau[i] - log[k - 1].tau[i]).abs();
-                assert!(rate <= limits.torque_rate[i] * dt + 1e-9, "tick {k}: joint {i} torque rate {rate} Nm per tick");
+                assert!(
+                    rate <= limits.torque_rate[i] * dt + 1e-9,
+                    "tick {k}: joint {i} torque rate {rate} Nm per tick"
+                );
             }
         }
     }
@@ -92,22 +101,40 @@ fn an_interrupted_motion_stays_continuous() {
             let command = runner.controller.tick(state);
             refs.push(*runner.controller.reference());
             measured.push(*state);
-            if ticks > 400 && runner.controller.trajectory_finished() { Cycle::Finish(command) } else { Cycle::Continue(command) }
+            if ticks > 400 && runner.controller.trajectory_finished() {
+                Cycle::Finish(command)
+            } else {
+                Cycle::Continue(command)
+            }
         })
         .unwrap();
     let at_switch = refs[399].dq.norm();
     assert!(at_switch > 0.2, "the switch happens mid-motion ({at_switch} rad/s)");
     let c = OscConfig::default_profile().unwrap();
-    let motion = flowram::control::trajectory::MotionLimits::scaled(&limits, c.velocity_scale, c.acceleration_scale, c.jerk_scale);
+    let motion = flowram::control::trajectory::MotionLimits::scaled(
+        &limits,
+        c.velocity_scale,
+        c.acceleration_scale,
+        c.jerk_scale,
+    );
     let dt = world.timestep();
     for k in 1..refs.len() {
         for i in 0..7 {
             let dddq = (refs[k].ddq[i] - refs[k - 1].ddq[i]).abs() / dt;
-            assert!(dddq <= motion.jerk[i] * (1.0 + 1e-6) + 1e-9, "tick {k}: reference acceleration jumps on joint {i}");
+            assert!(
+                dddq <= motion.jerk[i] * (1.0 + 1e-6) + 1e-9,
+                "tick {k}: reference acceleration jumps on joint {i}"
+            );
             let expected = 0.5 * (refs[k].ddq[i] + refs[k - 1].ddq[i]) * dt;
-            assert!((refs[k].dq[i] - refs[k - 1].dq[i] - expected).abs() <= motion.jerk[i] * dt * dt, "tick {k}: reference velocity jumps on joint {i}");
+            assert!(
+                (refs[k].dq[i] - refs[k - 1].dq[i] - expected).abs() <= motion.jerk[i] * dt * dt,
+                "tick {k}: reference velocity jumps on joint {i}"
+            );
             // The arm itself: velocity changes per tick stay small (no torque spikes at the switch).
-            assert!((measured[k].dq[i] - measured[k - 1].dq[i]).abs() < 0.05, "tick {k}: measured velocity jumps on joint {i}");
+            assert!(
+                (measured[k].dq[i] - measured[k - 1].dq[i]).abs() < 0.05,
+                "tick {k}: measured velocity jumps on joint {i}"
+            );
         }
     }
     assert!((refs.last().unwrap().q - second).norm() < 1e-9);

@@ -32,7 +32,12 @@ fn official(from: &JointSetpoint, goal: &JointVector, l: &MotionLimits) -> rucki
 }
 
 fn assert_follows(ours: &mut JointTrajectory, theirs: &ruckig::Trajectory, label: &str) {
-    assert!((ours.duration() - theirs.get_duration()).abs() < 1e-9, "{label}: duration {} vs official {}", ours.duration(), theirs.get_duration());
+    assert!(
+        (ours.duration() - theirs.get_duration()).abs() < 1e-9,
+        "{label}: duration {} vs official {}",
+        ours.duration(),
+        theirs.get_duration()
+    );
     let mut k = 2; // the first tick of the plan was taken by the caller
     while !ours.is_finished() {
         let s = ours.step().unwrap();
@@ -84,19 +89,32 @@ fn replanning_mid_motion_keeps_velocity_and_acceleration_continuous() {
     while !traj.is_finished() || ticks < 10 {
         if ticks == 120 || ticks == 260 {
             // New goals arrive while the arm is moving fast.
-            let goal = if ticks == 120 { [-0.5, 0.3, -0.4, -2.5, -0.6, 1.0, 0.0] } else { [0.3, -0.6, 0.2, -2.0, 0.2, 1.9, 0.9] };
+            let goal = if ticks == 120 {
+                [-0.5, 0.3, -0.4, -2.5, -0.6, 1.0, 0.0]
+            } else {
+                [0.3, -0.6, 0.2, -2.0, 0.2, 1.9, 0.9]
+            };
             traj.set_goal(&v(goal));
             replans += 1;
         }
         let s = traj.step().unwrap();
         for i in 0..7 {
             assert!(s.dq[i].abs() <= l.velocity[i] * (1.0 + 1e-9), "tick {ticks}: velocity limit of joint {i}");
-            assert!(s.ddq[i].abs() <= l.acceleration[i] * (1.0 + 1e-9), "tick {ticks}: acceleration limit of joint {i}");
+            assert!(
+                s.ddq[i].abs() <= l.acceleration[i] * (1.0 + 1e-9),
+                "tick {ticks}: acceleration limit of joint {i}"
+            );
             // Continuity: per tick the acceleration changes by at most jerk * dt, and velocity
             // by the mean acceleration over the tick.
-            assert!((s.ddq[i] - previous.ddq[i]).abs() <= l.jerk[i] * DT * (1.0 + 1e-6), "tick {ticks}: acceleration jump on joint {i}");
+            assert!(
+                (s.ddq[i] - previous.ddq[i]).abs() <= l.jerk[i] * DT * (1.0 + 1e-6),
+                "tick {ticks}: acceleration jump on joint {i}"
+            );
             let expected_dv = 0.5 * (s.ddq[i] + previous.ddq[i]) * DT;
-            assert!((s.dq[i] - previous.dq[i] - expected_dv).abs() <= l.jerk[i] * DT * DT, "tick {ticks}: velocity jump on joint {i}");
+            assert!(
+                (s.dq[i] - previous.dq[i] - expected_dv).abs() <= l.jerk[i] * DT * DT,
+                "tick {ticks}: velocity jump on joint {i}"
+            );
         }
         previous = s;
         ticks += 1;

@@ -148,7 +148,10 @@ fn sim(args: SimArgs) -> anyhow::Result<()> {
     if args.json {
         super::print_json(&report)
     } else {
-        println!("{:.0} steps/s, {:.1}x real time (dt = {} s)", report.steps_per_s, report.realtime_factor, report.timestep_s);
+        println!(
+            "{:.0} steps/s, {:.1}x real time (dt = {} s)",
+            report.steps_per_s, report.realtime_factor, report.timestep_s
+        );
         Ok(())
     }
 }
@@ -180,7 +183,10 @@ fn render(args: RenderBenchArgs) -> anyhow::Result<()> {
     if args.json {
         super::print_json(&report)
     } else {
-        println!("{:.1} RGB-D frames/s at {}x{} ({:?} visuals, camera {})", report.frames_per_s, report.size, report.size, report.visuals, report.camera);
+        println!(
+            "{:.1} RGB-D frames/s at {}x{} ({:?} visuals, camera {})",
+            report.frames_per_s, report.size, report.size, report.visuals, report.camera
+        );
         Ok(())
     }
 }
@@ -245,7 +251,18 @@ fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
     } else {
         println!(
             "tick: p50 {:.1} us, p99 {:.1} us, max {:.1} us (OSC p99 {:.1}, trajectory p99 {:.2}, kinematics p99 {:.1}); IK median {:.2} ms; {:.1}x real time (sim + control); {}/{} keyframes reached, {} QP fallbacks, {} limit violations",
-            out.tick_us_p50, out.tick_us_p99, out.tick_us_max, out.osc_us_p99, out.trajectory_us_p99, out.kinematics_us_p99, out.ik_ms_median, out.realtime_factor, out.keyframes_reached, out.keyframes, out.qp_fallbacks, out.limit_violations
+            out.tick_us_p50,
+            out.tick_us_p99,
+            out.tick_us_max,
+            out.osc_us_p99,
+            out.trajectory_us_p99,
+            out.kinematics_us_p99,
+            out.ik_ms_median,
+            out.realtime_factor,
+            out.keyframes_reached,
+            out.keyframes,
+            out.qp_fallbacks,
+            out.limit_violations
         );
         Ok(())
     }

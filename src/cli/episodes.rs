@@ -6,11 +6,11 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use flowram::data::Dataset;
 use flowram::files::write_atomic;
-use flowram::sim::{CameraRig, Visuals, image};
 use flowram::policy::inference::SamplingOptions;
+use flowram::sim::{CameraRig, Visuals, image};
+use flowram::tasks;
 use flowram::tasks::episode::{Actor, EpisodeResult, Observer, run_episode, run_policy_episode};
 use flowram::tasks::policy_actor::FlowRamActor;
-use flowram::tasks;
 use serde::Serialize;
 
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
@@ -54,7 +54,10 @@ pub struct Learned {
 impl LearnedArgs {
     /// Loads the checkpoint (`--checkpoint`), with the sampling options.
     pub fn load_actor(&self) -> anyhow::Result<FlowRamActor> {
-        let checkpoint = self.checkpoint.as_ref().context("the learned policy needs --checkpoint runs/NAME (a run folder from `flowram train`)")?;
+        let checkpoint = self
+            .checkpoint
+            .as_ref()
+            .context("the learned policy needs --checkpoint runs/NAME (a run folder from `flowram train`)")?;
         anyhow::ensure!(self.max_keyframes > 0, "--max-keyframes must be at least 1");
         let policy = flowram::policy::inference::Policy::load(checkpoint, super::policy::text_encoder()?)?;
         let options = SamplingOptions {
@@ -76,7 +79,13 @@ impl LearnedArgs {
 
 impl Learned {
     /// One closed-loop episode.
-    pub fn episode(&mut self, task: &dyn tasks::Task, world: &mut flowram::sim::World, variation: usize, seed: u64) -> anyhow::Result<EpisodeResult> {
+    pub fn episode(
+        &mut self,
+        task: &dyn tasks::Task,
+        world: &mut flowram::sim::World,
+        variation: usize,
+        seed: u64,
+    ) -> anyhow::Result<EpisodeResult> {
         let mut observer = Observer { rig: &mut self.rig, cameras: self.cameras.clone() };
         Ok(run_policy_episode(task, world, variation, seed, &mut self.actor, &mut observer, self.max_keyframes)?)
     }
@@ -119,7 +128,6 @@ struct RunReport {
     /// The executed keyframes, world frame: position (m), quaternion w x y z, gripper open (1/0).
     actions: Vec<[f32; 8]>,
 }
-
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
     let task = tasks::by_name(&args.task)?;
@@ -230,7 +238,10 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
         let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
         let result = run_episode(task.as_ref(), &mut world, variation, seed, Actor::Expert, Some(&mut observer))?;
         if !result.success {
-            bar.println(format!("seed {seed}: expert failed ({} keyframes reached of {}), not saved", result.reached, result.keyframes));
+            bar.println(format!(
+                "seed {seed}: expert failed ({} keyframes reached of {}), not saved",
+                result.reached, result.keyframes
+            ));
             continue;
         }
         let episode = result.to_dataset_episode().context("the episode recorded no images")?;
@@ -255,13 +266,22 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
     } else {
         println!(
             "{}: {} successful of {} attempts ({:.1} keyframes each), {:.1} episodes/min; dataset {} holds {} episodes",
-            report.task, report.successes, report.attempts, report.keyframes_mean, report.episodes_per_minute, args.out.display(), report.episodes
+            report.task,
+            report.successes,
+            report.attempts,
+            report.keyframes_mean,
+            report.episodes_per_minute,
+            args.out.display(),
+            report.episodes
         );
     }
-    anyhow::ensure!(successes == args.episodes, "collected only {successes} of {} episodes in {attempts} attempts", args.episodes);
+    anyhow::ensure!(
+        successes == args.episodes,
+        "collected only {successes} of {} episodes in {attempts} attempts",
+        args.episodes
+    );
     Ok(())
 }
-
 
 #[derive(Debug, Args)]
 pub struct SuccessBenchArgs {
@@ -349,8 +369,10 @@ pub fn success_bench(args: SuccessBenchArgs) -> anyhow::Result<()> {
 fn episode_bar(task: &str, episodes: usize) -> indicatif::ProgressBar {
     let bar = indicatif::ProgressBar::new(episodes as u64);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{spinner} {msg} [{bar:30}] {pos}/{len} episodes, {elapsed_precise} (eta {eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        indicatif::ProgressStyle::with_template(
+            "{spinner} {msg} [{bar:30}] {pos}/{len} episodes, {elapsed_precise} (eta {eta})",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
     bar.set_message(task.to_string());
     bar

@@ -12,7 +12,11 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 
 #[derive(Debug, Parser)]
-#[command(name = "flowram", version, about = "FlowRAM keyframe policy and real-time control stack for a MuJoCo Franka Panda")]
+#[command(
+    name = "flowram",
+    version,
+    about = "FlowRAM keyframe policy and real-time control stack for a MuJoCo Franka Panda"
+)]
 struct Cli {
     #[command(subcommand)]
     command: Command,

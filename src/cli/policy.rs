@@ -73,10 +73,13 @@ pub fn train_cmd(args: TrainArgs) -> anyhow::Result<()> {
     let mut text = text_encoder()?;
     let bar = indicatif::ProgressBar::new(0);
     bar.set_style(
-        indicatif::ProgressStyle::with_template("{spinner} [{bar:30}] step {pos}/{len} {msg}, {elapsed_precise} (eta {eta})")
-            .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
+        indicatif::ProgressStyle::with_template(
+            "{spinner} [{bar:30}] step {pos}/{len} {msg}, {elapsed_precise} (eta {eta})",
+        )
+        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
     );
-    let trainer = train(&args.out, config.as_ref(), &mut data, &mut text, args.resume, args.steps, &mut Bar(bar.clone()))?;
+    let trainer =
+        train(&args.out, config.as_ref(), &mut data, &mut text, args.resume, args.steps, &mut Bar(bar.clone()))?;
     bar.finish();
     eprintln!(
         "trained to step {} in {:.0} s; checkpoints in {}, metrics.csv and loss.png beside them",
@@ -138,13 +141,19 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
     let recorded = Observation::episode_action(&episode, args.keyframe);
     let steps = args.steps.unwrap_or(policy.config().flow.sampling_steps);
     let started = Instant::now();
-    let keyframes = policy.predict(&observation, &SamplingOptions { steps, samples: args.samples, drs: !args.no_drs, seed: args.seed })?;
+    let keyframes = policy
+        .predict(&observation, &SamplingOptions { steps, samples: args.samples, drs: !args.no_drs, seed: args.seed })?;
     let seconds = started.elapsed().as_secs_f64();
     let predictions: Vec<Prediction> = keyframes
         .into_iter()
         .map(|k| {
             let (p, r) = k.error_to(&recorded);
-            Prediction { keyframe: k, position_error_mm: p * 1e3, rotation_error_deg: r.to_degrees(), gripper_correct: k.gripper_open == recorded.gripper_open }
+            Prediction {
+                keyframe: k,
+                position_error_mm: p * 1e3,
+                rotation_error_deg: r.to_degrees(),
+                gripper_correct: k.gripper_open == recorded.gripper_open,
+            }
         })
         .collect();
     let report = PredictReport {
@@ -160,11 +169,24 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
     if args.json {
         return super::print_json(&report);
     }
-    println!("{} keyframe {}: \"{}\" ({} Euler steps, DRS {})", report.episode.display(), report.keyframe, report.instruction, steps, if report.drs { "on" } else { "off" });
+    println!(
+        "{} keyframe {}: \"{}\" ({} Euler steps, DRS {})",
+        report.episode.display(),
+        report.keyframe,
+        report.instruction,
+        steps,
+        if report.drs { "on" } else { "off" }
+    );
     let show = |k: &flowram::policy::observation::KeyframePose| {
         format!(
             "position [{:.4}, {:.4}, {:.4}] m, quat wxyz [{:.3}, {:.3}, {:.3}, {:.3}], {}",
-            k.position[0], k.position[1], k.position[2], k.quat_wxyz[0], k.quat_wxyz[1], k.quat_wxyz[2], k.quat_wxyz[3],
+            k.position[0],
+            k.position[1],
+            k.position[2],
+            k.quat_wxyz[0],
+            k.quat_wxyz[1],
+            k.quat_wxyz[2],
+            k.quat_wxyz[3],
             if k.gripper_open { "open" } else { "closed" }
         )
     };
@@ -237,7 +259,6 @@ struct PolicyBenchReport {
     train_batch: usize,
 }
 
-
 pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
     if args.repeats == 0 {
         bail!("--repeats must be at least 1");
@@ -286,7 +307,12 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
     let mut profiles = Vec::new();
     for r in 0..args.repeats {
         let mut profile = SampleProfile::default();
-        policy.sample_profiled(&prepared, &encoded, &SamplingOptions { steps: 8, samples: 1, drs: true, seed: r as u64 }, &mut profile)?;
+        policy.sample_profiled(
+            &prepared,
+            &encoded,
+            &SamplingOptions { steps: 8, samples: 1, drs: true, seed: r as u64 },
+            &mut profile,
+        )?;
         profiles.push(profile);
     }
     let drs8 = SampleProfile {
@@ -328,7 +354,10 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         "FlowRAM, N1 {} N2 {}, {} Mamba layers, {} cameras at {} px, {} threads (median of {}):",
         report.n1, report.n2, report.layers, report.cameras, report.image_size, report.threads, args.repeats
     );
-    println!("  observation -> tokens (lifting, FPS): {:.1} ms; + image encoder and prefix scan: {:.1} ms", report.prepare_ms, report.encode_ms);
+    println!(
+        "  observation -> tokens (lifting, FPS): {:.1} ms; + image encoder and prefix scan: {:.1} ms",
+        report.prepare_ms, report.encode_ms
+    );
     for (name, t) in [("DRS", &report.infer_ms.drs), ("global", &report.infer_ms.global)] {
         println!(
             "  end to end, {name:>6}: 2 steps {:.0} ms, 4 {:.0}, 8 {:.0}, 16 {:.0}, 32 {:.0}",
@@ -346,11 +375,17 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
 /// One expert demonstration of open_drawer with all four cameras at `size` pixels.
 fn demonstration(size: usize) -> anyhow::Result<flowram::data::Episode> {
     use flowram::sim::{CameraRig, Visuals};
-    use flowram::tasks::{self, episode::{Actor, Observer, run_episode}};
+    use flowram::tasks::{
+        self,
+        episode::{Actor, Observer, run_episode},
+    };
     let task = tasks::by_name("open_drawer")?;
     let mut world = tasks::load_world(task.as_ref())?;
     let mut rig = CameraRig::new(&world, size, Visuals::Full)?;
-    let cameras = ["front", "left_shoulder", "right_shoulder", "wrist"].iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
+    let cameras = ["front", "left_shoulder", "right_shoulder", "wrist"]
+        .iter()
+        .map(|c| rig.camera_index(c))
+        .collect::<Result<Vec<_>, _>>()?;
     let mut observer = Observer { rig: &mut rig, cameras };
     let result = run_episode(task.as_ref(), &mut world, 0, 0, Actor::Expert, Some(&mut observer))?;
     result.to_dataset_episode().context("the demonstration has no images")
@@ -423,7 +458,9 @@ fn summarise(rows: &[(f32, f32, bool)]) -> Errors {
 }
 
 /// The mean keyframe of `episodes` (mean position, chordal-mean rotation, majority gripper).
-fn mean_keyframe<'a>(episodes: impl Iterator<Item = &'a flowram::data::Episode>) -> anyhow::Result<flowram::policy::observation::KeyframePose> {
+fn mean_keyframe<'a>(
+    episodes: impl Iterator<Item = &'a flowram::data::Episode>,
+) -> anyhow::Result<flowram::policy::observation::KeyframePose> {
     use flowram::policy::geometry;
     let mut sum = [0f64; 9];
     let (mut count, mut open) = (0usize, 0usize);
@@ -471,7 +508,8 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
             for k in 0..e.keyframes() {
                 let observation = Observation::from_episode(e, k)?;
                 let target = Observation::episode_action(e, k);
-                let predicted = policy.predict(&observation, &SamplingOptions { steps, samples: 1, drs: true, seed: k as u64 })?[0];
+                let predicted =
+                    policy.predict(&observation, &SamplingOptions { steps, samples: 1, drs: true, seed: k as u64 })?[0];
                 let row = |p: &flowram::policy::observation::KeyframePose| {
                     let (d, r) = p.error_to(&target);
                     (d, r, p.gripper_open == target.gripper_open)

@@ -25,4 +25,3 @@ pub fn simulated_stack(scene: &str, config: OscConfig) -> anyhow::Result<(World,
         .context("building the control stack")?;
     Ok((world, runner))
 }
-

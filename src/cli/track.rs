@@ -26,7 +26,8 @@ pub struct TrackArgs {
 }
 
 pub fn read_keyframes(path: &std::path::Path) -> anyhow::Result<KeyframeFile> {
-    let text = std::fs::read_to_string(path).with_context(|| format!("cannot read the keyframes file {}", path.display()))?;
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read the keyframes file {}", path.display()))?;
     let file: KeyframeFile = serde_json::from_str(&text).with_context(|| {
         format!(
             "{} is not a keyframes file; expected {{\"keyframes\":[{{\"position\":[x,y,z],\"quat_wxyz\":[w,x,y,z],\"gripper_open\":true}}, ...]}}",

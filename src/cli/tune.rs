@@ -43,7 +43,8 @@ struct TuneReport<'a> {
 pub fn run(args: TuneArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.duration > 0.0 && args.duration <= 60.0, "--duration must be in (0, 60] seconds");
     let config = super::stack::load_config(args.config.as_deref())?;
-    let config_name = args.config.as_deref().map_or_else(|| "controllers/osc.toml".to_string(), |p| p.display().to_string());
+    let config_name =
+        args.config.as_deref().map_or_else(|| "controllers/osc.toml".to_string(), |p| p.display().to_string());
     let (mut world, mut runner) = super::stack::simulated_stack(&args.scene, config)?;
     let result = step_response(&mut world, &mut runner, &args.step, args.smooth, args.duration)?;
     if let Some(path) = &args.plot {
@@ -85,7 +86,8 @@ fn plot(run: &StepRun, path: &Path) -> anyhow::Result<()> {
             let scale = if axis < 3 { 1e3 } else { 180.0 / std::f64::consts::PI };
             let series = |v: &[[f64; 6]]| v.iter().zip(&run.t).map(|(x, &t)| (t, x[axis] * scale)).collect::<Vec<_>>();
             let (response, reference) = (series(&run.response), series(&run.reference));
-            let (lo, hi) = response.iter().chain(&reference).fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+            let (lo, hi) =
+                response.iter().chain(&reference).fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
             let pad = ((hi - lo) * 0.1).max(0.05);
             let mut chart = ChartBuilder::on(panel)
                 .caption(names[axis], ("sans-serif", 16))
@@ -94,9 +96,20 @@ fn plot(run: &StepRun, path: &Path) -> anyhow::Result<()> {
                 .y_label_area_size(50)
                 .build_cartesian_2d(0.0..t_end, (lo - pad)..(hi + pad))?;
             chart.configure_mesh().x_desc("t (s)").label_style(("sans-serif", 12)).draw()?;
-            chart.draw_series(LineSeries::new(reference, &BLUE))?.label("reference").legend(|(x, y)| PathElement::new([(x, y), (x + 15, y)], BLUE));
-            chart.draw_series(LineSeries::new(response, &RED))?.label("TCP").legend(|(x, y)| PathElement::new([(x, y), (x + 15, y)], RED));
-            chart.configure_series_labels().label_font(("sans-serif", 12)).border_style(BLACK).background_style(WHITE).draw()?;
+            chart
+                .draw_series(LineSeries::new(reference, &BLUE))?
+                .label("reference")
+                .legend(|(x, y)| PathElement::new([(x, y), (x + 15, y)], BLUE));
+            chart
+                .draw_series(LineSeries::new(response, &RED))?
+                .label("TCP")
+                .legend(|(x, y)| PathElement::new([(x, y), (x + 15, y)], RED));
+            chart
+                .configure_series_labels()
+                .label_font(("sans-serif", 12))
+                .border_style(BLACK)
+                .background_style(WHITE)
+                .draw()?;
         }
         root.present()?;
     }

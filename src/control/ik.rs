@@ -67,7 +67,15 @@ impl Default for IkConfig {
             restarts: 24,
             damping: 1e-4,
             limit_margin: 0.01,
-            neutral: JointVector::from_column_slice(&[0.0, -FRAC_PI_4, 0.0, -3.0 * FRAC_PI_4, 0.0, FRAC_PI_2, FRAC_PI_4]),
+            neutral: JointVector::from_column_slice(&[
+                0.0,
+                -FRAC_PI_4,
+                0.0,
+                -3.0 * FRAC_PI_4,
+                0.0,
+                FRAC_PI_2,
+                FRAC_PI_4,
+            ]),
             nullspace_gain: 0.05,
             shoulder: Vector3::new(0.0, 0.0, 0.333),
             // Upper arm 0.316 + forearm 0.384 (+ 0.0825 offsets) + flange 0.107 + TCP 0.1034.
@@ -100,7 +108,10 @@ pub fn target_pose(position: [f64; 3], quat_wxyz: [f64; 4]) -> Result<Isometry3<
     if (norm - 1.0).abs() > 1e-3 {
         return Err(IkError::NotUnitQuaternion { norm });
     }
-    Ok(Isometry3::from_parts(Translation3::new(position[0], position[1], position[2]), UnitQuaternion::from_quaternion(q)))
+    Ok(Isometry3::from_parts(
+        Translation3::new(position[0], position[1], position[2]),
+        UnitQuaternion::from_quaternion(q),
+    ))
 }
 
 /// The solver: configuration and the limits it respects.
@@ -116,7 +127,12 @@ impl InverseKinematics {
     }
 
     /// Joint goal for `target` (TCP in the base frame), starting from `seed`.
-    pub fn solve(&self, kin: &mut Kinematics, target: &Isometry3<f64>, seed: &JointVector) -> Result<IkSolution, IkError> {
+    pub fn solve(
+        &self,
+        kin: &mut Kinematics,
+        target: &Isometry3<f64>,
+        seed: &JointVector,
+    ) -> Result<IkSolution, IkError> {
         let c = &self.config;
         if target.translation.vector.iter().chain(target.rotation.coords.iter()).any(|v| !v.is_finite()) {
             return Err(IkError::NonFinite("pose"));
@@ -135,7 +151,9 @@ impl InverseKinematics {
                 0 => self.limits.clamp(seed, c.limit_margin),
                 1 => self.limits.clamp(&c.neutral, c.limit_margin),
                 _ => JointVector::from_fn(|i, _| {
-                    rng.random_range(self.limits.position_min[i] + c.limit_margin..self.limits.position_max[i] - c.limit_margin)
+                    rng.random_range(
+                        self.limits.position_min[i] + c.limit_margin..self.limits.position_max[i] - c.limit_margin,
+                    )
                 }),
             };
             let mut s = self.descend(kin, target, start)?;
@@ -176,14 +194,23 @@ impl InverseKinematics {
     /// A solution that continues from `seed` (one descent, no restarts), for points along a
     /// path: it fails rather than jump to another arm branch (no joint moves more than
     /// `max_step` rad).
-    pub fn solve_near(&self, kin: &mut Kinematics, target: &Isometry3<f64>, seed: &JointVector, max_step: f64) -> Result<IkSolution, IkError> {
+    pub fn solve_near(
+        &self,
+        kin: &mut Kinematics,
+        target: &Isometry3<f64>,
+        seed: &JointVector,
+        max_step: f64,
+    ) -> Result<IkSolution, IkError> {
         let c = &self.config;
         let s = self.descend(kin, target, self.limits.clamp(seed, c.limit_margin))?;
         let converged = s.position_error <= c.position_tolerance && s.orientation_error <= c.orientation_tolerance;
         if converged && (s.q - seed).abs().max() <= max_step {
             Ok(s)
         } else {
-            Err(IkError::Unreachable { position_error_mm: s.position_error * 1e3, orientation_error_deg: s.orientation_error.to_degrees() })
+            Err(IkError::Unreachable {
+                position_error_mm: s.position_error * 1e3,
+                orientation_error_deg: s.orientation_error.to_degrees(),
+            })
         }
     }
 
@@ -203,7 +230,12 @@ impl InverseKinematics {
     /// One Levenberg-Marquardt descent from `q`: a step is kept only if it lowers the error
     /// (else the damping grows); joints resting on a limit and pushed outward are frozen for the
     /// step (their Jacobian column is removed) instead of stalling the others.
-    fn descend(&self, kin: &mut Kinematics, target: &Isometry3<f64>, mut q: JointVector) -> Result<IkSolution, IkError> {
+    fn descend(
+        &self,
+        kin: &mut Kinematics,
+        target: &Isometry3<f64>,
+        mut q: JointVector,
+    ) -> Result<IkSolution, IkError> {
         let c = &self.config;
         let lo = self.limits.position_min.add_scalar(c.limit_margin);
         let hi = self.limits.position_max.add_scalar(-c.limit_margin);
@@ -259,7 +291,10 @@ const CANDIDATES: usize = 4;
 
 /// A deterministic seed per target, so a given pose always gets the same restarts.
 fn restart_seed(target: &Isometry3<f64>) -> u64 {
-    target.translation.vector.iter().chain(target.rotation.coords.iter()).fold(0xcbf2_9ce4_8422_2325u64, |h, v| {
-        (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3)
-    })
+    target
+        .translation
+        .vector
+        .iter()
+        .chain(target.rotation.coords.iter())
+        .fold(0xcbf2_9ce4_8422_2325u64, |h, v| (h ^ v.to_bits()).wrapping_mul(0x0100_0000_01b3))
 }

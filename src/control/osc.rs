@@ -133,7 +133,12 @@ impl std::fmt::Debug for Osc {
 }
 
 impl Osc {
-    pub fn new(config: OscConfig, limits: JointLimits, friction: JointFriction, dt: f64) -> Result<Self, OscSetupError> {
+    pub fn new(
+        config: OscConfig,
+        limits: JointLimits,
+        friction: JointFriction,
+        dt: f64,
+    ) -> Result<Self, OscSetupError> {
         // Fixed sparsity patterns, built explicitly so that no entry is ever dropped:
         // P = [H 0; 0 w_s I] (H's dense upper triangle, 28 + 7 entries),
         // A = [M 0; I I] (M dense, identities: 56 + 7 entries).
@@ -153,8 +158,13 @@ impl Osc {
             .eps_rel(1e-5)
             .max_iter(config.max_iterations)
             .check_termination(Some(10))
-            .time_limit(Some(Duration::from_secs_f64(if config.time_limit > 0.0 { config.time_limit } else { NO_TIME_LIMIT_S })));
-        let problem = Problem::new(&p, &lin, &a, &lower, &upper, &settings).map_err(|e| OscSetupError(format!("{e:?}")))?;
+            .time_limit(Some(Duration::from_secs_f64(if config.time_limit > 0.0 {
+                config.time_limit
+            } else {
+                NO_TIME_LIMIT_S
+            })));
+        let problem =
+            Problem::new(&p, &lin, &a, &lower, &upper, &settings).map_err(|e| OscSetupError(format!("{e:?}")))?;
         Ok(Self {
             config,
             limits,
@@ -189,7 +199,13 @@ impl Osc {
     }
 
     /// The torque for this tick. `dynamics` is the model at the measured state (q, q̇).
-    pub fn compute(&mut self, q: &JointVector, dq: &JointVector, dynamics: &Dynamics, reference: &TaskReference) -> OscOutput {
+    pub fn compute(
+        &mut self,
+        q: &JointVector,
+        dq: &JointVector,
+        dynamics: &Dynamics,
+        reference: &TaskReference,
+    ) -> OscOutput {
         self.stats.ticks += 1;
         let c = &self.config;
         let (tau_lo, tau_hi) = self.torque_bounds();
@@ -256,7 +272,14 @@ impl Osc {
         let null = JointMatrix::identity() - pinv * jac;
         let null_sq = null.transpose() * null;
 
-        let w = Vector6::new(c.position_weight, c.position_weight, c.position_weight, c.orientation_weight, c.orientation_weight, c.orientation_weight);
+        let w = Vector6::new(
+            c.position_weight,
+            c.position_weight,
+            c.position_weight,
+            c.orientation_weight,
+            c.orientation_weight,
+            c.orientation_weight,
+        );
         let jtw = jac.transpose() * Matrix6::from_diagonal(&w);
         let hessian = jtw * jac + null_sq * c.posture_weight + JointMatrix::identity() * c.regularization;
         let gradient = -(jtw * b + null_sq * posture * c.posture_weight);
@@ -270,7 +293,8 @@ impl Osc {
         // Ramp it: it switches sign with the direction, and a jump would eat the torque-rate
         // budget of the tick.
         let ramp = self.limits.torque_rate * self.dt * FRICTION_RAMP;
-        self.friction_torque = self.friction_torque.zip_zip_map(&target, &ramp, |prev, t, r| t.clamp(prev - r, prev + r));
+        self.friction_torque =
+            self.friction_torque.zip_zip_map(&target, &ramp, |prev, t, r| t.clamp(prev - r, prev + r));
         let offset = dynamics.coriolis + self.friction_torque;
 
         // Bounds: torque rows (on M q̈ = tau - C q̇ - friction) and acceleration rows.
@@ -374,7 +398,11 @@ impl Osc {
 fn p_pattern() -> CscMatrix<'static> {
     let (mut indptr, mut indices) = (vec![0], Vec::new());
     for j in 0..NX {
-        if j < N { indices.extend(0..=j) } else { indices.push(j) }
+        if j < N {
+            indices.extend(0..=j)
+        } else {
+            indices.push(j)
+        }
         indptr.push(indices.len());
     }
     let nnz = indices.len();

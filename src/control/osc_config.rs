@@ -76,7 +76,13 @@ impl OscConfig {
 
     pub fn from_config(mut f: ConfigFile) -> Result<Self, ConfigError> {
         let position = axis(&mut f, "task.position", Quantity::Length, Quantity::Acceleration, Quantity::Velocity)?;
-        let orientation = axis(&mut f, "task.orientation", Quantity::Angle, Quantity::AngularAcceleration, Quantity::AngularVelocity)?;
+        let orientation = axis(
+            &mut f,
+            "task.orientation",
+            Quantity::Angle,
+            Quantity::AngularAcceleration,
+            Quantity::AngularVelocity,
+        )?;
         let fraction = |f: &mut ConfigFile, field: &str| -> Result<f64, ConfigError> {
             let x = f.number_field(field, Sign::Positive)?;
             if x > 1.0 {
@@ -102,7 +108,11 @@ impl OscConfig {
             limit_margin: f.quantity("qp.limit_margin", Quantity::Angle, Sign::NonNegative)?,
             max_iterations: max_iterations as u32,
             time_limit: f.quantity("qp.time_limit", Quantity::Time, Sign::NonNegative)?,
-            fallback_damping: JointVector::from_column_slice(&f.quantities::<7>("fallback.damping", Quantity::JointDamping, Sign::NonNegative)?),
+            fallback_damping: JointVector::from_column_slice(&f.quantities::<7>(
+                "fallback.damping",
+                Quantity::JointDamping,
+                Sign::NonNegative,
+            )?),
             friction_compensation: {
                 let x = f.number_field("friction.compensation", Sign::NonNegative)?;
                 if x > 1.0 {
@@ -124,7 +134,13 @@ impl OscConfig {
     }
 }
 
-fn axis(f: &mut ConfigFile, section: &str, zone: Quantity, limit: Quantity, speed: Quantity) -> Result<AxisGains, ConfigError> {
+fn axis(
+    f: &mut ConfigFile,
+    section: &str,
+    zone: Quantity,
+    limit: Quantity,
+    speed: Quantity,
+) -> Result<AxisGains, ConfigError> {
     let v3 = |a: [f64; 3]| Vector3::from(a);
     Ok(AxisGains {
         stiffness: v3(f.quantities(&format!("{section}.stiffness"), Quantity::PerSecondSquared, Sign::NonNegative)?),

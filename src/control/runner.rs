@@ -98,7 +98,9 @@ x,y,z,qw,qx,qy,qz,ref_x,ref_y,ref_z,ref_qw,ref_qx,ref_qy,ref_qz,q_ref1,q_ref2,q_
     pub fn csv_line(&self, out: &mut String) {
         use std::fmt::Write;
         let _ = write!(out, "{:.4}", self.t);
-        for v in self.q.iter().chain(&self.dq).chain(&self.tau).chain(&self.tcp).chain(&self.reference).chain(&self.q_ref) {
+        for v in
+            self.q.iter().chain(&self.dq).chain(&self.tau).chain(&self.tcp).chain(&self.reference).chain(&self.q_ref)
+        {
             let _ = write!(out, ",{v:.6}");
         }
         out.push('\n');
@@ -125,7 +127,15 @@ pub struct LimitMonitor {
 
 impl LimitMonitor {
     pub fn new(limits: JointLimits, dt: f64) -> Self {
-        Self { limits, dt, previous_tau: None, violations: 0, max_torque_ratio: 0.0, max_torque_rate_ratio: 0.0, max_velocity_ratio: 0.0 }
+        Self {
+            limits,
+            dt,
+            previous_tau: None,
+            violations: 0,
+            max_torque_ratio: 0.0,
+            max_torque_rate_ratio: 0.0,
+            max_velocity_ratio: 0.0,
+        }
     }
 
     /// Checks the state and the command of one tick.
@@ -183,7 +193,13 @@ impl Runner {
         Ok(Self::new(controller, ik, limits, dt, state.gripper_width > 0.04))
     }
 
-    pub fn new(controller: ArmController, ik: InverseKinematics, limits: JointLimits, dt: f64, gripper_open: bool) -> Self {
+    pub fn new(
+        controller: ArmController,
+        ik: InverseKinematics,
+        limits: JointLimits,
+        dt: f64,
+        gripper_open: bool,
+    ) -> Self {
         Self {
             controller,
             ik,
@@ -243,7 +259,15 @@ impl Runner {
             let (target, goals) = match goal {
                 Ok(g) => g,
                 Err(e) => {
-                    reports.push(KeyframeReport { reached: false, pos_err_mm: f64::NAN, rot_err_deg: f64::NAN, time_s: 0.0, error: Some(e.to_string()), gripper: None, ik_ms });
+                    reports.push(KeyframeReport {
+                        reached: false,
+                        pos_err_mm: f64::NAN,
+                        rot_err_deg: f64::NAN,
+                        time_s: 0.0,
+                        error: Some(e.to_string()),
+                        gripper: None,
+                        ik_ms,
+                    });
                     continue;
                 }
             };
@@ -262,7 +286,8 @@ impl Runner {
                 pos_err_mm: ep * 1e3,
                 rot_err_deg: er.to_degrees(),
                 time_s: backend.read_state().time - t0,
-                error: (!reached).then(|| format!("settled {:.2} mm / {:.3} deg from the keyframe", ep * 1e3, er.to_degrees())),
+                error: (!reached)
+                    .then(|| format!("settled {:.2} mm / {:.3} deg from the keyframe", ep * 1e3, er.to_degrees())),
                 gripper: gripper.map(|g| describe(&g)),
                 ik_ms,
             });
@@ -321,7 +346,12 @@ impl Runner {
     /// 3 cm / 0.1 rad, each solved by IK seeded with the previous one, so that the TCP moves
     /// along a line near objects instead of along a joint-space curve. If a point of the line
     /// has no IK solution the move goes straight to the target in joint space.
-    fn straight_line_goals(&mut self, from: &Isometry3<f64>, target: &Isometry3<f64>, seed: &JointVector) -> Result<Vec<JointVector>, IkError> {
+    fn straight_line_goals(
+        &mut self,
+        from: &Isometry3<f64>,
+        target: &Isometry3<f64>,
+        seed: &JointVector,
+    ) -> Result<Vec<JointVector>, IkError> {
         let distance = (target.translation.vector - from.translation.vector).norm();
         let angle = from.rotation.angle_to(&target.rotation);
         let steps = ((distance / WAYPOINT_SPACING).max(angle / WAYPOINT_ANGLE).ceil() as usize).clamp(1, 100);
@@ -347,7 +377,12 @@ impl Runner {
         Ok(goals)
     }
 
-    fn move_and_settle<B: RobotBackend>(&mut self, backend: &mut B, target: &Isometry3<f64>, goals: &[JointVector]) -> Result<Vector6<f64>, BackendError> {
+    fn move_and_settle<B: RobotBackend>(
+        &mut self,
+        backend: &mut B,
+        target: &Isometry3<f64>,
+        goals: &[JointVector],
+    ) -> Result<Vector6<f64>, BackendError> {
         let c = *self.controller.osc().config();
         let mut settle_start: Option<f64> = None;
         let mut within = 0u32;
@@ -356,7 +391,9 @@ impl Runner {
         backend.control(|state| {
             // Feed the waypoints: the next one as soon as the reference nears the current one,
             // so the motion flows through them.
-            if next < goals.len() && (next == 0 || (self.controller.reference().q - goals[next - 1]).norm() < WAYPOINT_SWITCH) {
+            if next < goals.len()
+                && (next == 0 || (self.controller.reference().q - goals[next - 1]).norm() < WAYPOINT_SWITCH)
+            {
                 self.controller.set_goal(&goals[next]);
                 next += 1;
             }
@@ -406,4 +443,3 @@ fn describe(g: &GraspState) -> String {
         GraspState::Blocked { width } => format!("blocked at {:.1} mm", width * 1e3),
     }
 }
-

@@ -30,7 +30,11 @@ pub struct MotionLimits {
 impl MotionLimits {
     /// Fractions of the arm's limits (each in (0, 1]).
     pub fn scaled(limits: &JointLimits, velocity: f64, acceleration: f64, jerk: f64) -> Self {
-        Self { velocity: limits.velocity * velocity, acceleration: limits.acceleration * acceleration, jerk: limits.jerk * jerk }
+        Self {
+            velocity: limits.velocity * velocity,
+            acceleration: limits.acceleration * acceleration,
+            jerk: limits.jerk * jerk,
+        }
     }
 }
 
@@ -70,7 +74,13 @@ impl JointTrajectory {
         set(&mut input.max_velocity, &limits.velocity);
         set(&mut input.max_acceleration, &limits.acceleration);
         set(&mut input.max_jerk, &limits.jerk);
-        let mut t = Self { otg: Ruckig::new(None, dt), input, output: OutputParameter::new(None), finished: true, duration: 0.0 };
+        let mut t = Self {
+            otg: Ruckig::new(None, dt),
+            input,
+            output: OutputParameter::new(None),
+            finished: true,
+            duration: 0.0,
+        };
         t.hold(q);
         t
     }

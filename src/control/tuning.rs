@@ -78,7 +78,13 @@ fn relative(pose: &Isometry3<f64>, start: &Isometry3<f64>) -> [f64; 6] {
 }
 
 /// Applies `step` to the reference from the current pose and records `duration` seconds.
-pub fn step_response<B: RobotBackend>(backend: &mut B, runner: &mut Runner, step: &Step, smooth: bool, duration: f64) -> Result<StepRun, TuneError> {
+pub fn step_response<B: RobotBackend>(
+    backend: &mut B,
+    runner: &mut Runner,
+    step: &Step,
+    smooth: bool,
+    duration: f64,
+) -> Result<StepRun, TuneError> {
     let q0 = backend.read_state().q;
     let kin = runner.controller.kinematics_mut();
     let start = kin.tcp(&q0).map_err(IkError::from)?;
@@ -93,7 +99,8 @@ pub fn step_response<B: RobotBackend>(backend: &mut B, runner: &mut Runner, step
         runner.controller.jump_reference(&goal);
     }
     let ticks = (duration / backend.period()).ceil() as usize;
-    let (mut t, mut reference, mut response) = (Vec::with_capacity(ticks), Vec::with_capacity(ticks), Vec::with_capacity(ticks));
+    let (mut t, mut reference, mut response) =
+        (Vec::with_capacity(ticks), Vec::with_capacity(ticks), Vec::with_capacity(ticks));
     let t0 = backend.read_state().time;
     let mut peak: f64 = 0.0;
     let torque_limit = runner.monitor_limits().torque;
@@ -128,7 +135,13 @@ fn progress(sample: &[f64; 6], step: &Step) -> f64 {
     }
 }
 
-fn analyze(t: &[f64], response: &[[f64; 6]], step: &Step, target: &Isometry3<f64>, final_pose: &Isometry3<f64>) -> StepMetrics {
+fn analyze(
+    t: &[f64],
+    response: &[[f64; 6]],
+    step: &Step,
+    target: &Isometry3<f64>,
+    final_pose: &Isometry3<f64>,
+) -> StepMetrics {
     let s: Vec<f64> = response.iter().map(|x| progress(x, step)).collect();
     let first = |level: f64| s.iter().position(|&v| v >= level).map(|i| t[i]);
     let rise_time_s = match (first(0.1), first(0.9)) {

@@ -127,7 +127,12 @@ impl Episode {
             return bad(format!("`proprio` has {} values, expected K x {POSE_LEN} with K >= 1", self.proprio.len()));
         }
         if self.cameras.is_empty() || self.height == 0 || self.width == 0 {
-            return bad(format!("needs at least one camera and a non-empty image, got {} cameras of {}x{} pixels", self.cameras.len(), self.height, self.width));
+            return bad(format!(
+                "needs at least one camera and a non-empty image, got {} cameras of {}x{} pixels",
+                self.cameras.len(),
+                self.height,
+                self.width
+            ));
         }
         for (name, layout, shape, len) in self.shapes() {
             let expected: usize = shape.iter().product();
@@ -163,7 +168,8 @@ pub fn write_episode(path: &Path, episode: &Episode) -> Result<(), DataError> {
         let dtype = if name == "rgb" { Dtype::U8 } else { Dtype::F32 };
         buffers.push((name, dtype, shape, data));
     }
-    let corrupt = |e: safetensors::SafeTensorError| DataError::InvalidEpisode(format!("cannot encode {}: {e}", path.display()));
+    let corrupt =
+        |e: safetensors::SafeTensorError| DataError::InvalidEpisode(format!("cannot encode {}: {e}", path.display()));
     let mut views = Vec::new();
     for (name, dtype, shape, data) in &buffers {
         views.push((*name, TensorView::new(*dtype, shape.clone(), data).map_err(corrupt)?));
@@ -192,7 +198,8 @@ fn episode_metadata(e: &Episode) -> HashMap<String, String> {
 pub fn read_episode(path: &Path) -> Result<Episode, DataError> {
     let bytes = std::fs::read(path).map_err(|source| DataError::Read { path: path.to_path_buf(), source })?;
     check_layout(path, &bytes)?;
-    let corrupted = |e: safetensors::SafeTensorError| DataError::Corrupted { path: path.to_path_buf(), reason: e.to_string() };
+    let corrupted =
+        |e: safetensors::SafeTensorError| DataError::Corrupted { path: path.to_path_buf(), reason: e.to_string() };
     let (header_len, meta) = SafeTensors::read_metadata(&bytes).map_err(corrupted)?;
     let data = &bytes[8 + header_len..];
     let get = |name, dtype, rank| tensor(path, &meta, data, name, dtype, rank);
@@ -217,9 +224,17 @@ pub fn read_episode(path: &Path) -> Result<Episode, DataError> {
     let empty = HashMap::new();
     let fields = meta.metadata().as_ref().unwrap_or(&empty);
     let field = |key: &'static str| -> Result<&String, DataError> {
-        fields.get(key).ok_or_else(|| DataError::Metadata { path: path.to_path_buf(), key, problem: "is missing".into() })
+        fields.get(key).ok_or_else(|| DataError::Metadata {
+            path: path.to_path_buf(),
+            key,
+            problem: "is missing".into(),
+        })
     };
-    let parse_err = |key: &'static str, value: &str, what: &str| DataError::Metadata { path: path.to_path_buf(), key, problem: format!("is {value:?}, expected {what}") };
+    let parse_err = |key: &'static str, value: &str, what: &str| DataError::Metadata {
+        path: path.to_path_buf(),
+        key,
+        problem: format!("is {value:?}, expected {what}"),
+    };
     let format = field("format")?;
     if format != EPISODE_FORMAT {
         return Err(parse_err("format", format, &format!("{EPISODE_FORMAT:?}")));
@@ -231,7 +246,8 @@ pub fn read_episode(path: &Path) -> Result<Episode, DataError> {
     let success = field("success")?;
     let success = success.parse().map_err(|_| parse_err("success", success, "\"true\" or \"false\""))?;
     let cams = field("cameras")?;
-    let cameras: Vec<String> = serde_json::from_str(cams).map_err(|_| parse_err("cameras", cams, "a JSON array of names"))?;
+    let cameras: Vec<String> =
+        serde_json::from_str(cams).map_err(|_| parse_err("cameras", cams, "a JSON array of names"))?;
     if cameras.len() != c {
         return Err(parse_err("cameras", cams, &format!("{c} names to match the camera axis of rgb {rgb_shape:?}")));
     }
@@ -290,16 +306,31 @@ fn check_layout(path: &Path, bytes: &[u8]) -> Result<(), DataError> {
 }
 
 /// Looks up tensor `name`, checks its dtype and rank and returns its shape and raw bytes.
-fn tensor<'a>(path: &Path, meta: &Metadata, data: &'a [u8], name: &'static str, dtype: Dtype, rank: usize) -> Result<(Vec<usize>, &'a [u8]), DataError> {
+fn tensor<'a>(
+    path: &Path,
+    meta: &Metadata,
+    data: &'a [u8],
+    name: &'static str,
+    dtype: Dtype,
+    rank: usize,
+) -> Result<(Vec<usize>, &'a [u8]), DataError> {
     let info = meta.info(name).ok_or_else(|| DataError::MissingTensor { path: path.to_path_buf(), name })?;
     if info.dtype != dtype {
-        return Err(DataError::WrongDtype { path: path.to_path_buf(), name, found: info.dtype.to_string(), expected: dtype.to_string() });
+        return Err(DataError::WrongDtype {
+            path: path.to_path_buf(),
+            name,
+            found: info.dtype.to_string(),
+            expected: dtype.to_string(),
+        });
     }
     if info.shape.len() != rank {
         return Err(wrong_shape(path, name, &info.shape, format!("rank {rank}")));
     }
     let (start, end) = info.data_offsets;
-    let bytes = data.get(start..end).ok_or_else(|| DataError::Corrupted { path: path.to_path_buf(), reason: format!("tensor `{name}` lies outside the file") })?;
+    let bytes = data.get(start..end).ok_or_else(|| DataError::Corrupted {
+        path: path.to_path_buf(),
+        reason: format!("tensor `{name}` lies outside the file"),
+    })?;
     Ok((info.shape.clone(), bytes))
 }
 
@@ -329,16 +360,21 @@ pub struct IndexEntry {
 pub fn read_index(dir: &Path) -> Result<DatasetIndex, DataError> {
     let path = dir.join(INDEX_FILE);
     let text = std::fs::read(&path).map_err(|source| DataError::Read { path: path.clone(), source })?;
-    let index: DatasetIndex = serde_json::from_slice(&text).map_err(|e| DataError::Index { path: path.clone(), problem: e.to_string() })?;
+    let index: DatasetIndex =
+        serde_json::from_slice(&text).map_err(|e| DataError::Index { path: path.clone(), problem: e.to_string() })?;
     if index.format != DATASET_FORMAT {
-        return Err(DataError::Index { path, problem: format!("format is {:?}, expected {DATASET_FORMAT:?}", index.format) });
+        return Err(DataError::Index {
+            path,
+            problem: format!("format is {:?}, expected {DATASET_FORMAT:?}", index.format),
+        });
     }
     Ok(index)
 }
 
 fn write_index(dir: &Path, index: &DatasetIndex) -> Result<(), DataError> {
     let path = dir.join(INDEX_FILE);
-    let json = serde_json::to_vec_pretty(index).map_err(|e| DataError::Index { path: path.clone(), problem: e.to_string() })?;
+    let json = serde_json::to_vec_pretty(index)
+        .map_err(|e| DataError::Index { path: path.clone(), problem: e.to_string() })?;
     crate::files::write_atomic(&path, &json).map_err(|source| DataError::Write { path, source })
 }
 
@@ -355,21 +391,40 @@ pub struct DatasetWriter {
 impl Dataset {
     /// Opens the dataset in `dir`, or creates it (folder + empty index) if it has no index yet.
     /// An existing dataset must have the same task, cameras and image size ([H, W], pixels).
-    pub fn create_or_open(dir: &Path, task: &str, cameras: &[String], image_size: [usize; 2]) -> Result<DatasetWriter, DataError> {
+    pub fn create_or_open(
+        dir: &Path,
+        task: &str,
+        cameras: &[String],
+        image_size: [usize; 2],
+    ) -> Result<DatasetWriter, DataError> {
         if dir.join(INDEX_FILE).exists() {
             let index = read_index(dir)?;
             check_same(dir, &index, task, cameras, image_size)?;
             return Ok(DatasetWriter { dir: dir.to_path_buf(), index });
         }
-        let index = DatasetIndex { format: DATASET_FORMAT.into(), task: task.into(), cameras: cameras.to_vec(), image_size, episodes: Vec::new() };
+        let index = DatasetIndex {
+            format: DATASET_FORMAT.into(),
+            task: task.into(),
+            cameras: cameras.to_vec(),
+            image_size,
+            episodes: Vec::new(),
+        };
         write_index(dir, &index)?;
         Ok(DatasetWriter { dir: dir.to_path_buf(), index })
     }
 }
 
 /// Refuses to mix a different task, camera list or image size ([H, W]) into the dataset in `dir`.
-fn check_same(dir: &Path, index: &DatasetIndex, task: &str, cameras: &[String], image_size: [usize; 2]) -> Result<(), DataError> {
-    let mismatch = |field, existing: String, new: String| Err(DataError::Mismatch { dir: dir.to_path_buf(), field, existing, new });
+fn check_same(
+    dir: &Path,
+    index: &DatasetIndex,
+    task: &str,
+    cameras: &[String],
+    image_size: [usize; 2],
+) -> Result<(), DataError> {
+    let mismatch = |field, existing: String, new: String| {
+        Err(DataError::Mismatch { dir: dir.to_path_buf(), field, existing, new })
+    };
     if index.task != task {
         return mismatch("task", format!("{:?}", index.task), format!("{task:?}"));
     }
@@ -400,7 +455,13 @@ impl DatasetWriter {
         let file = name(number);
         let path = self.dir.join(&file);
         write_episode(&path, episode)?;
-        let entry = IndexEntry { file, variation: episode.variation, instruction: episode.instruction.clone(), seed: episode.seed, keyframes: episode.keyframes() };
+        let entry = IndexEntry {
+            file,
+            variation: episode.variation,
+            instruction: episode.instruction.clone(),
+            seed: episode.seed,
+            keyframes: episode.keyframes(),
+        };
         self.index.episodes.push(entry);
         if let Err(e) = write_index(&self.dir, &self.index) {
             self.index.episodes.pop();
@@ -438,15 +499,32 @@ pub fn load_dataset(dir: &Path) -> Result<LoadedDataset, DataError> {
 fn load_entry(path: &Path, entry: &IndexEntry, index: &DatasetIndex) -> Result<Episode, DataError> {
     let plain = Path::new(&entry.file).file_name().is_some_and(|n| n == entry.file.as_str());
     if !plain {
-        return Err(DataError::EntryMismatch { path: path.to_path_buf(), problem: "the file name must be a plain name inside the dataset folder".into() });
+        return Err(DataError::EntryMismatch {
+            path: path.to_path_buf(),
+            problem: "the file name must be a plain name inside the dataset folder".into(),
+        });
     }
     let episode = read_episode(path)?;
     let problem = if episode.task != index.task || episode.cameras != index.cameras {
-        format!("task/cameras {:?}/{:?}, index says {:?}/{:?}", episode.task, episode.cameras, index.task, index.cameras)
+        format!(
+            "task/cameras {:?}/{:?}, index says {:?}/{:?}",
+            episode.task, episode.cameras, index.task, index.cameras
+        )
     } else if [episode.height, episode.width] != index.image_size {
         format!("image size {:?}, index says {:?}", [episode.height, episode.width], index.image_size)
-    } else if episode.keyframes() != entry.keyframes || episode.seed != entry.seed || episode.variation != entry.variation {
-        format!("keyframes/seed/variation {}/{}/{}, index says {}/{}/{}", episode.keyframes(), episode.seed, episode.variation, entry.keyframes, entry.seed, entry.variation)
+    } else if episode.keyframes() != entry.keyframes
+        || episode.seed != entry.seed
+        || episode.variation != entry.variation
+    {
+        format!(
+            "keyframes/seed/variation {}/{}/{}, index says {}/{}/{}",
+            episode.keyframes(),
+            episode.seed,
+            episode.variation,
+            entry.keyframes,
+            entry.seed,
+            entry.variation
+        )
     } else {
         return Ok(episode);
     };

@@ -32,7 +32,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::optim::{load_safetensors, AdamW, Ema};
+use crate::policy::optim::{AdamW, Ema, load_safetensors};
 
 pub const CONFIG_FILE: &str = "config.json";
 pub const MODEL_FILE: &str = "model.safetensors";
@@ -47,10 +47,7 @@ const STAGING_PREFIX: &str = ".staging-";
 const FORMAT_VERSION: u32 = 1;
 
 fn file_error(path: &Path, message: impl Into<String>) -> PolicyError {
-    PolicyError::File {
-        path: path.to_path_buf(),
-        message: message.into(),
-    }
+    PolicyError::File { path: path.to_path_buf(), message: message.into() }
 }
 
 fn io_error(path: &Path, action: &str, e: std::io::Error) -> PolicyError {
@@ -59,12 +56,8 @@ fn io_error(path: &Path, action: &str, e: std::io::Error) -> PolicyError {
 
 /// fsyncs a directory so a rename inside it is durable.
 fn sync_dir(dir: &Path) -> Result<()> {
-    File::open(dir)
-        .and_then(|f| f.sync_all())
-        .map_err(|e| io_error(dir, "fsync directory", e))
+    File::open(dir).and_then(|f| f.sync_all()).map_err(|e| io_error(dir, "fsync directory", e))
 }
-
-
 
 fn unique_suffix() -> u64 {
     use std::sync::atomic::{AtomicU64, Ordering};
@@ -123,10 +116,7 @@ pub struct FileDigest {
 
 fn digest_of(path: &Path) -> Result<(FileDigest, Vec<u8>)> {
     let bytes = fs::read(path).map_err(|e| io_error(path, "read", e))?;
-    let digest = FileDigest {
-        bytes: bytes.len() as u64,
-        fnv1a64: format!("{:016x}", fnv1a64(&bytes)),
-    };
+    let digest = FileDigest { bytes: bytes.len() as u64, fnv1a64: format!("{:016x}", fnv1a64(&bytes)) };
     Ok((digest, bytes))
 }
 
@@ -183,8 +173,7 @@ impl CheckpointStore {
     /// Opens (creating it if needed) a checkpoint root. Keeps the 3 newest checkpoints.
     pub fn open(root: impl Into<PathBuf>) -> Result<Self> {
         let root = root.into();
-        fs::create_dir_all(&root)
-            .map_err(|e| io_error(&root, "create the checkpoint directory", e))?;
+        fs::create_dir_all(&root).map_err(|e| io_error(&root, "create the checkpoint directory", e))?;
         Ok(Self { root, keep_last: 3 })
     }
 
@@ -240,61 +229,39 @@ impl CheckpointStore {
     ) -> Result<PathBuf> {
         self.remove_stale_staging();
         let final_name = step_dir_name(trainer.step);
-        let staging = self.root.join(format!(
-            "{STAGING_PREFIX}{final_name}-{}-{}",
-            std::process::id(),
-            unique_suffix()
-        ));
+        let staging =
+            self.root.join(format!("{STAGING_PREFIX}{final_name}-{}-{}", std::process::id(), unique_suffix()));
         fs::create_dir_all(&staging).map_err(|e| io_error(&staging, "create", e))?;
 
-        let config_bytes = serde_json::to_vec_pretty(config).map_err(|e| {
-            file_error(&staging.join(CONFIG_FILE), format!("cannot serialise: {e}"))
-        })?;
+        let config_bytes = serde_json::to_vec_pretty(config)
+            .map_err(|e| file_error(&staging.join(CONFIG_FILE), format!("cannot serialise: {e}")))?;
         write_atomic(&staging.join(CONFIG_FILE), &config_bytes)?;
         write_safetensors_atomic(&varmap_tensors(model)?, &staging.join(MODEL_FILE))?;
         write_safetensors_atomic(&ema.state_tensors()?, &staging.join(EMA_FILE))?;
-        write_safetensors_atomic(
-            &optimizer.state_tensors(OPTIMIZER_PREFIX)?,
-            &staging.join(OPTIMIZER_FILE),
-        )?;
+        write_safetensors_atomic(&optimizer.state_tensors(OPTIMIZER_PREFIX)?, &staging.join(OPTIMIZER_FILE))?;
 
         let mut files = BTreeMap::new();
         for name in [CONFIG_FILE, MODEL_FILE, EMA_FILE, OPTIMIZER_FILE] {
             files.insert(name.to_string(), digest_of(&staging.join(name))?.0);
         }
-        let trainer_file = TrainerFile {
-            format_version: FORMAT_VERSION,
-            state: trainer.clone(),
-            files,
-        };
-        let trainer_bytes = serde_json::to_vec_pretty(&trainer_file).map_err(|e| {
-            file_error(
-                &staging.join(TRAINER_FILE),
-                format!("cannot serialise: {e}"),
-            )
-        })?;
+        let trainer_file = TrainerFile { format_version: FORMAT_VERSION, state: trainer.clone(), files };
+        let trainer_bytes = serde_json::to_vec_pretty(&trainer_file)
+            .map_err(|e| file_error(&staging.join(TRAINER_FILE), format!("cannot serialise: {e}")))?;
         write_atomic(&staging.join(TRAINER_FILE), &trainer_bytes)?;
         sync_dir(&staging)?;
 
         // Commit: move the finished directory into place, then the pointer.
         let final_dir = self.root.join(&final_name);
         let displaced = if final_dir.exists() {
-            let old = self.root.join(format!(
-                "{STAGING_PREFIX}old-{final_name}-{}",
-                unique_suffix()
-            ));
+            let old = self.root.join(format!("{STAGING_PREFIX}old-{final_name}-{}", unique_suffix()));
             fs::rename(&final_dir, &old).map_err(|e| io_error(&final_dir, "move aside", e))?;
             Some(old)
         } else {
             None
         };
-        fs::rename(&staging, &final_dir)
-            .map_err(|e| io_error(&final_dir, "commit (rename staging onto)", e))?;
+        fs::rename(&staging, &final_dir).map_err(|e| io_error(&final_dir, "commit (rename staging onto)", e))?;
         sync_dir(&self.root)?;
-        write_atomic(
-            &self.root.join(LATEST_FILE),
-            format!("{final_name}\n").as_bytes(),
-        )?;
+        write_atomic(&self.root.join(LATEST_FILE), format!("{final_name}\n").as_bytes())?;
         if let Some(old) = displaced {
             let _ = fs::remove_dir_all(old);
         }
@@ -305,11 +272,7 @@ impl CheckpointStore {
     fn remove_stale_staging(&self) {
         if let Ok(entries) = fs::read_dir(&self.root) {
             for entry in entries.flatten() {
-                if entry
-                    .file_name()
-                    .to_string_lossy()
-                    .starts_with(STAGING_PREFIX)
-                {
+                if entry.file_name().to_string_lossy().starts_with(STAGING_PREFIX) {
                     let _ = fs::remove_dir_all(entry.path());
                 }
             }
@@ -331,14 +294,9 @@ impl CheckpointStore {
 
 /// The model's variables as named tensors (what goes to `model.safetensors`).
 pub fn varmap_tensors(model: &VarMap) -> Result<HashMap<String, Tensor>> {
-    let data = model
-        .data()
-        .lock()
-        .map_err(|_| PolicyError::Invalid("checkpoint: the VarMap lock is poisoned".into()))?;
-    Ok(data
-        .iter()
-        .map(|(k, v)| (k.clone(), v.as_tensor().clone()))
-        .collect())
+    let data =
+        model.data().lock().map_err(|_| PolicyError::Invalid("checkpoint: the VarMap lock is poisoned".into()))?;
+    Ok(data.iter().map(|(k, v)| (k.clone(), v.as_tensor().clone())).collect())
 }
 
 /// Checks `tensors` against the model's variables by name, shape and dtype,
@@ -349,10 +307,8 @@ fn check_model_tensors(
     ignore: &[&str],
     source: &Path,
 ) -> Result<Vec<(candle_core::Var, Tensor)>> {
-    let data = model
-        .data()
-        .lock()
-        .map_err(|_| PolicyError::Invalid("checkpoint: the VarMap lock is poisoned".into()))?;
+    let data =
+        model.data().lock().map_err(|_| PolicyError::Invalid("checkpoint: the VarMap lock is poisoned".into()))?;
     let mut names: Vec<&String> = data.keys().collect();
     names.sort();
     let mut out = Vec::with_capacity(names.len());
@@ -370,34 +326,19 @@ fn check_model_tensors(
         if t.shape() != var.shape() {
             return Err(file_error(
                 source,
-                format!(
-                    "tensor '{name}' has shape {:?}, the model expects {:?}",
-                    t.dims(),
-                    var.dims()
-                ),
+                format!("tensor '{name}' has shape {:?}, the model expects {:?}", t.dims(), var.dims()),
             ));
         }
         if t.dtype() != var.dtype() {
             return Err(file_error(
                 source,
-                format!(
-                    "tensor '{name}' is {:?}, the model expects {:?}",
-                    t.dtype(),
-                    var.dtype()
-                ),
+                format!("tensor '{name}' is {:?}, the model expects {:?}", t.dtype(), var.dtype()),
             ));
         }
         out.push((var.clone(), t.clone()));
     }
-    let known: HashSet<&str> = data
-        .keys()
-        .map(String::as_str)
-        .chain(ignore.iter().copied())
-        .collect();
-    let mut extra: Vec<&String> = tensors
-        .keys()
-        .filter(|k| !known.contains(k.as_str()))
-        .collect();
+    let known: HashSet<&str> = data.keys().map(String::as_str).chain(ignore.iter().copied()).collect();
+    let mut extra: Vec<&String> = tensors.keys().filter(|k| !known.contains(k.as_str())).collect();
     extra.sort();
     if let Some(first) = extra.first() {
         return Err(file_error(
@@ -412,10 +353,7 @@ fn check_model_tensors(
 }
 
 fn model_device(model: &VarMap) -> Device {
-    model
-        .all_vars()
-        .first()
-        .map_or(Device::Cpu, |v| v.device().clone())
+    model.all_vars().first().map_or(Device::Cpu, |v| v.device().clone())
 }
 
 /// Loads model weights from a safetensors file (e.g. a checkpoint's
@@ -423,8 +361,7 @@ fn model_device(model: &VarMap) -> Device {
 /// checking names and shapes. Nothing is changed on error.
 pub fn load_model_weights(path: &Path, model: &VarMap) -> Result<()> {
     let tensors = load_safetensors(path, &model_device(model))?;
-    let assignments =
-        check_model_tensors(model, &tensors, &[crate::policy::optim::EMA_UPDATES_TENSOR], path)?;
+    let assignments = check_model_tensors(model, &tensors, &[crate::policy::optim::EMA_UPDATES_TENSOR], path)?;
     for (var, t) in assignments {
         var.set(&t)?;
     }
@@ -434,22 +371,14 @@ pub fn load_model_weights(path: &Path, model: &VarMap) -> Result<()> {
 /// Reads and verifies a checkpoint's `trainer.json` and the digests of its files.
 fn read_trainer_file(dir: &Path) -> Result<(TrainerFile, HashMap<&'static str, Vec<u8>>)> {
     let trainer_path = dir.join(TRAINER_FILE);
-    let text = fs::read_to_string(&trainer_path).map_err(|e| {
-        io_error(
-            &trainer_path,
-            "read (is this a committed checkpoint directory?)",
-            e,
-        )
-    })?;
+    let text = fs::read_to_string(&trainer_path)
+        .map_err(|e| io_error(&trainer_path, "read (is this a committed checkpoint directory?)", e))?;
     let trainer: TrainerFile = serde_json::from_str(&text)
         .map_err(|e| file_error(&trainer_path, format!("not a valid trainer state: {e}")))?;
     if trainer.format_version != FORMAT_VERSION {
         return Err(file_error(
             &trainer_path,
-            format!(
-                "format version {} is not supported (expected {FORMAT_VERSION})",
-                trainer.format_version
-            ),
+            format!("format version {} is not supported (expected {FORMAT_VERSION})", trainer.format_version),
         ));
     }
     let mut contents = HashMap::new();
@@ -463,10 +392,7 @@ fn read_trainer_file(dir: &Path) -> Result<(TrainerFile, HashMap<&'static str, V
         if found.bytes != expected.bytes {
             return Err(file_error(
                 &path,
-                format!(
-                    "truncated or corrupt: {} bytes, trainer.json recorded {}",
-                    found.bytes, expected.bytes
-                ),
+                format!("truncated or corrupt: {} bytes, trainer.json recorded {}", found.bytes, expected.bytes),
             ));
         }
         if found.fnv1a64 != expected.fnv1a64 {
@@ -483,29 +409,16 @@ fn read_trainer_file(dir: &Path) -> Result<(TrainerFile, HashMap<&'static str, V
     Ok((trainer, contents))
 }
 
-fn parse_safetensors(
-    path: &Path,
-    bytes: &[u8],
-    device: &Device,
-) -> Result<HashMap<String, Tensor>> {
-    candle_core::safetensors::load_buffer(bytes, device).map_err(|e| {
-        file_error(
-            path,
-            format!("not a valid safetensors file (truncated or corrupt?): {e}"),
-        )
-    })
+fn parse_safetensors(path: &Path, bytes: &[u8], device: &Device) -> Result<HashMap<String, Tensor>> {
+    candle_core::safetensors::load_buffer(bytes, device)
+        .map_err(|e| file_error(path, format!("not a valid safetensors file (truncated or corrupt?): {e}")))
 }
 
 /// Restores a checkpoint directory into `model`, `ema` and `optimizer` and
 /// returns its config and trainer state. Every file is verified (digests,
 /// names, shapes) before anything is changed, so on error the model and
 /// optimiser are untouched; the error names the offending file.
-pub fn load_checkpoint(
-    dir: &Path,
-    model: &VarMap,
-    ema: &mut Ema,
-    optimizer: &mut AdamW,
-) -> Result<LoadedCheckpoint> {
+pub fn load_checkpoint(dir: &Path, model: &VarMap, ema: &mut Ema, optimizer: &mut AdamW) -> Result<LoadedCheckpoint> {
     let (trainer, contents) = read_trainer_file(dir)?;
     let device = model_device(model);
     let config_path = dir.join(CONFIG_FILE);
@@ -529,11 +442,7 @@ pub fn load_checkpoint(
     }
     ema.apply_state(ema_state);
     optimizer.apply_state(opt_state);
-    Ok(LoadedCheckpoint {
-        dir: dir.to_path_buf(),
-        config,
-        trainer: trainer.state,
-    })
+    Ok(LoadedCheckpoint { dir: dir.to_path_buf(), config, trainer: trainer.state })
 }
 
 /// Reads only a checkpoint's `config.json` (e.g. to build the model before
@@ -573,8 +482,7 @@ mod tests {
     struct TempDir(PathBuf);
     impl TempDir {
         fn new(tag: &str) -> Self {
-            let p = std::env::temp_dir()
-                .join(format!("policy_train_ckpt_{tag}_{}", std::process::id()));
+            let p = std::env::temp_dir().join(format!("policy_train_ckpt_{tag}_{}", std::process::id()));
             let _ = fs::remove_dir_all(&p);
             fs::create_dir_all(&p).unwrap();
             TempDir(p)
@@ -590,23 +498,10 @@ mod tests {
     fn model(extra_head: bool, enc_rows: usize) -> VarMap {
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &Device::Cpu);
-        vb.pp("enc")
-            .get_with_hints(
-                (enc_rows, 3),
-                "w",
-                Init::Randn {
-                    mean: 0.0,
-                    stdev: 1.0,
-                },
-            )
-            .unwrap();
-        vb.pp("enc")
-            .get_with_hints(enc_rows, "b", Init::Const(0.1))
-            .unwrap();
+        vb.pp("enc").get_with_hints((enc_rows, 3), "w", Init::Randn { mean: 0.0, stdev: 1.0 }).unwrap();
+        vb.pp("enc").get_with_hints(enc_rows, "b", Init::Const(0.1)).unwrap();
         if extra_head {
-            vb.pp("head")
-                .get_with_hints((2, enc_rows), "w", Init::Const(0.2))
-                .unwrap();
+            vb.pp("head").get_with_hints((2, enc_rows), "w", Init::Const(0.2)).unwrap();
         }
         varmap
     }
@@ -629,14 +524,7 @@ mod tests {
     }
 
     fn save_one(store: &CheckpointStore, varmap: &VarMap, step: u64) -> (PathBuf, AdamW, Ema) {
-        let mut opt = AdamW::new(
-            varmap,
-            AdamWConfig {
-                learning_rate: 0.01,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let mut opt = AdamW::new(varmap, AdamWConfig { learning_rate: 0.01, ..Default::default() }).unwrap();
         let mut ema = Ema::new(varmap, EmaConfig::default()).unwrap();
         train_steps(varmap, &mut opt, &mut ema, 3);
         let trainer = TrainerState {
@@ -665,13 +553,7 @@ mod tests {
         let saved = model(true, 4);
         let (dir, opt, ema) = save_one(&store, &saved, 3);
         assert_eq!(store.latest().unwrap(), Some(dir.clone()));
-        for f in [
-            CONFIG_FILE,
-            MODEL_FILE,
-            EMA_FILE,
-            OPTIMIZER_FILE,
-            TRAINER_FILE,
-        ] {
+        for f in [CONFIG_FILE, MODEL_FILE, EMA_FILE, OPTIMIZER_FILE, TRAINER_FILE] {
             assert!(dir.join(f).is_file(), "{f}");
         }
 
@@ -687,29 +569,16 @@ mod tests {
         assert_eq!(opt2.step_count(), opt.step_count());
         assert_eq!(ema2.updates(), ema.updates());
         let (a, b) = (ema.tensors().unwrap(), ema2.tensors().unwrap());
-        assert_eq!(
-            a["enc.w"].to_vec2::<f32>().unwrap(),
-            b["enc.w"].to_vec2::<f32>().unwrap()
-        );
-        let (a, b) = (
-            opt.state_tensors("x").unwrap(),
-            opt2.state_tensors("x").unwrap(),
-        );
-        assert_eq!(
-            a["xv.enc.w"].to_vec2::<f32>().unwrap(),
-            b["xv.enc.w"].to_vec2::<f32>().unwrap()
-        );
+        assert_eq!(a["enc.w"].to_vec2::<f32>().unwrap(), b["enc.w"].to_vec2::<f32>().unwrap());
+        let (a, b) = (opt.state_tensors("x").unwrap(), opt2.state_tensors("x").unwrap());
+        assert_eq!(a["xv.enc.w"].to_vec2::<f32>().unwrap(), b["xv.enc.w"].to_vec2::<f32>().unwrap());
 
         // EMA weights load as a model for inference.
         let inference = model(true, 4);
         load_model_weights(&dir.join(EMA_FILE), &inference).unwrap();
         assert_eq!(
             snapshot(&inference)["enc.w"],
-            ema.tensors().unwrap()["enc.w"]
-                .flatten_all()
-                .unwrap()
-                .to_vec1::<f32>()
-                .unwrap()
+            ema.tensors().unwrap()["enc.w"].flatten_all().unwrap().to_vec1::<f32>().unwrap()
         );
         assert_eq!(read_checkpoint_config(&dir).unwrap()["model"]["dim"], 120);
     }
@@ -731,11 +600,7 @@ mod tests {
         let err = load_checkpoint(&dir, &fresh, &mut ema, &mut opt).unwrap_err();
         assert_eq!(error_path(&err), model_path);
         assert!(err.to_string().contains("truncated"), "{err}");
-        assert_eq!(
-            snapshot(&fresh),
-            before,
-            "a failed load must not change the model"
-        );
+        assert_eq!(snapshot(&fresh), before, "a failed load must not change the model");
         assert_eq!(opt.step_count(), 0);
 
         // Without trainer.json's digests the safetensors parser catches it too.
@@ -767,10 +632,7 @@ mod tests {
         let err = load_checkpoint(&dir, &wider, &mut ema, &mut opt).unwrap_err();
         assert_eq!(error_path(&err), model_path);
         let msg = err.to_string();
-        assert!(
-            msg.contains("'enc.b'") && msg.contains("[4]") && msg.contains("[5]"),
-            "{msg}"
-        );
+        assert!(msg.contains("'enc.b'") && msg.contains("[4]") && msg.contains("[5]"), "{msg}");
     }
 
     #[test]
@@ -814,12 +676,7 @@ mod tests {
         save_one(&store, &saved, 20);
         assert!(!staging.exists(), "stale staging directories are removed");
         let (third, _, _) = save_one(&store, &saved, 40);
-        let steps: Vec<u64> = store
-            .committed()
-            .unwrap()
-            .into_iter()
-            .map(|(s, _)| s)
-            .collect();
+        let steps: Vec<u64> = store.committed().unwrap().into_iter().map(|(s, _)| s).collect();
         assert_eq!(steps, vec![20, 40]);
         assert_eq!(store.latest().unwrap(), Some(third));
         // Saving the same step again replaces it.
@@ -833,14 +690,8 @@ mod tests {
         assert_eq!(draw(step_rng(1, 5)), draw(step_rng(1, 5)));
         assert_ne!(draw(step_rng(1, 5)), draw(step_rng(1, 6)));
         assert_ne!(draw(step_rng(1, 5)), draw(step_rng(2, 5)));
-        assert_ne!(
-            draw(step_rng_for(1, 5, "noise")),
-            draw(step_rng_for(1, 5, "augment"))
-        );
-        assert_eq!(
-            draw(step_rng_for(1, 5, "noise")),
-            draw(step_rng_for(1, 5, "noise"))
-        );
+        assert_ne!(draw(step_rng_for(1, 5, "noise")), draw(step_rng_for(1, 5, "augment")));
+        assert_eq!(draw(step_rng_for(1, 5, "noise")), draw(step_rng_for(1, 5, "noise")));
     }
 
     /// A miniature FlowRAM training step: image encoder -> pooled features,
@@ -883,30 +734,18 @@ mod tests {
             ema: &mut Ema,
         ) -> f32 {
             use crate::policy::flow::{
-                flow_matching_loss, flow_training_sample, FlowTimeSampling, LossWeights,
-                ACTION_DIMS,
+                ACTION_DIMS, FlowTimeSampling, LossWeights, flow_matching_loss, flow_training_sample,
             };
             let mut rng = step_rng(seed, step);
             let sample = flow_training_sample(a1, &mut rng, FlowTimeSampling::Uniform).unwrap();
-            let feats = self
-                .encoder
-                .forward_channels_last(images)
-                .unwrap()
-                .mean((1, 2))
-                .unwrap();
-            let input =
-                Tensor::cat(&[&feats, &sample.a_t, &sample.t.unsqueeze(1).unwrap()], 1).unwrap();
+            let feats = self.encoder.forward_channels_last(images).unwrap().mean((1, 2)).unwrap();
+            let input = Tensor::cat(&[&feats, &sample.a_t, &sample.t.unsqueeze(1).unwrap()], 1).unwrap();
             let out = candle_nn::Module::forward(&self.head, &input).unwrap();
             let v_pred = out.narrow(1, 0, ACTION_DIMS).unwrap();
             let open_logit = out.narrow(1, ACTION_DIMS, 1).unwrap().squeeze(1).unwrap();
-            let (total, _, _) = flow_matching_loss(
-                &v_pred,
-                &sample.target_velocity,
-                &open_logit,
-                open,
-                &LossWeights::default(),
-            )
-            .unwrap();
+            let (total, _, _) =
+                flow_matching_loss(&v_pred, &sample.target_velocity, &open_logit, open, &LossWeights::default())
+                    .unwrap();
             opt.backward_step(&total).unwrap();
             ema.update().unwrap();
             total.to_scalar::<f32>().unwrap()
@@ -918,9 +757,7 @@ mod tests {
         let tmp = TempDir::new("resume");
         let dev = Device::Cpu;
         let images = Tensor::from_vec(
-            (0..4 * 3 * 32 * 32)
-                .map(|i| ((i * 37) % 251) as u8)
-                .collect::<Vec<u8>>(),
+            (0..4 * 3 * 32 * 32).map(|i| ((i * 37) % 251) as u8).collect::<Vec<u8>>(),
             (4, 3, 32, 32),
             &dev,
         )
@@ -928,11 +765,7 @@ mod tests {
         let a1 = Tensor::randn(0f32, 0.5, (4, crate::policy::flow::ACTION_DIMS), &dev).unwrap();
         let open = Tensor::new(&[1f32, 0.0, 1.0, 0.0], &dev).unwrap();
         let seed = 1234;
-        let opt_cfg = AdamWConfig {
-            learning_rate: 1e-3,
-            max_grad_norm: Some(1.0),
-            ..Default::default()
-        };
+        let opt_cfg = AdamWConfig { learning_rate: 1e-3, max_grad_norm: Some(1.0), ..Default::default() };
 
         // Two runs from the same initial weights.
         let vm_a = VarMap::new();
@@ -944,9 +777,8 @@ mod tests {
         // Uninterrupted: 6 steps.
         let mut opt_a = AdamW::new(&vm_a, opt_cfg.clone()).unwrap();
         let mut ema_a = Ema::new(&vm_a, EmaConfig::default()).unwrap();
-        let losses_a: Vec<f32> = (1..=6)
-            .map(|s| policy_a.train_step(&images, &a1, &open, seed, s, &mut opt_a, &mut ema_a))
-            .collect();
+        let losses_a: Vec<f32> =
+            (1..=6).map(|s| policy_a.train_step(&images, &a1, &open, seed, s, &mut opt_a, &mut ema_a)).collect();
 
         // Interrupted: 3 steps, checkpoint, "crash".
         let mut opt_b = AdamW::new(&vm_b, opt_cfg.clone()).unwrap();
@@ -963,9 +795,7 @@ mod tests {
             elapsed_seconds: 0.0,
             extra: serde_json::Value::Null,
         };
-        store
-            .save(&serde_json::json!({}), &vm_b, &ema_b, &opt_b, &trainer)
-            .unwrap();
+        store.save(&serde_json::json!({}), &vm_b, &ema_b, &opt_b, &trainer).unwrap();
         drop((policy_b, opt_b, ema_b, vm_b));
 
         // Fresh process: new (differently initialised) model, resume.
@@ -973,25 +803,9 @@ mod tests {
         let policy_c = MiniPolicy::new(&vm_c);
         let mut opt_c = AdamW::new(&vm_c, opt_cfg).unwrap();
         let mut ema_c = Ema::new(&vm_c, EmaConfig::default()).unwrap();
-        let loaded = load_checkpoint(
-            &store.latest().unwrap().unwrap(),
-            &vm_c,
-            &mut ema_c,
-            &mut opt_c,
-        )
-        .unwrap();
+        let loaded = load_checkpoint(&store.latest().unwrap().unwrap(), &vm_c, &mut ema_c, &mut opt_c).unwrap();
         let losses_c: Vec<f32> = (loaded.trainer.step + 1..=6)
-            .map(|s| {
-                policy_c.train_step(
-                    &images,
-                    &a1,
-                    &open,
-                    loaded.trainer.seed,
-                    s,
-                    &mut opt_c,
-                    &mut ema_c,
-                )
-            })
+            .map(|s| policy_c.train_step(&images, &a1, &open, loaded.trainer.seed, s, &mut opt_c, &mut ema_c))
             .collect();
 
         assert_eq!(losses_c, losses_a[3..].to_vec());

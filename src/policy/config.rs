@@ -97,9 +97,12 @@ pub struct TrainConfig {
 impl PolicyConfig {
     /// Reads and validates a TOML file.
     pub fn from_toml_file(path: &Path) -> Result<Self> {
-        let text = std::fs::read_to_string(path)
-            .map_err(|e| PolicyError::File { path: path.into(), message: format!("cannot read the policy config: {e}") })?;
-        let config: Self = toml::from_str(&text).map_err(|e| PolicyError::File { path: path.into(), message: e.to_string() })?;
+        let text = std::fs::read_to_string(path).map_err(|e| PolicyError::File {
+            path: path.into(),
+            message: format!("cannot read the policy config: {e}"),
+        })?;
+        let config: Self =
+            toml::from_str(&text).map_err(|e| PolicyError::File { path: path.into(), message: e.to_string() })?;
         config.validate().map_err(|e| PolicyError::File { path: path.into(), message: e.to_string() })?;
         Ok(config)
     }
@@ -128,7 +131,11 @@ impl PolicyConfig {
             Err(PolicyError::Invalid(format!("policy config: {field} must be {expected}; got {got}")))
         };
         if o.image_size == 0 || o.feature_stride == 0 || o.image_size % o.feature_stride != 0 {
-            return bad("observation.feature_stride", "positive and divide observation.image_size", format!("{} / {}", o.feature_stride, o.image_size));
+            return bad(
+                "observation.feature_stride",
+                "positive and divide observation.image_size",
+                format!("{} / {}", o.feature_stride, o.image_size),
+            );
         }
         for (field, v) in [
             ("observation.semantic_tokens", o.semantic_tokens),
@@ -150,7 +157,11 @@ impl PolicyConfig {
             }
         }
         if self.model.channels % 6 != 0 {
-            return bad("model.channels", "a multiple of 6 (the 3D positional encoding uses sin and cos per axis)", self.model.channels.to_string());
+            return bad(
+                "model.channels",
+                "a multiple of 6 (the 3D positional encoding uses sin and cos per axis)",
+                self.model.channels.to_string(),
+            );
         }
         self.radius_schedule.validate()?;
         let t = &self.train;

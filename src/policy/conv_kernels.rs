@@ -43,30 +43,28 @@ fn im2col_typed<T: Copy + Default + Send + Sync>(
     let row_len = k * k * c;
     let mut dst = vec![T::default(); n * ho * wo * row_len];
     // One parallel task per output image row.
-    dst.par_chunks_mut(wo * row_len)
-        .enumerate()
-        .for_each(|(row, out)| {
-            let (img, oy) = (row / ho, row % ho);
-            let base = img * h * w * c;
-            for ox in 0..wo {
-                let out_px = &mut out[ox * row_len..(ox + 1) * row_len];
-                for ky in 0..k {
-                    let iy = (oy * win.stride + ky) as isize - win.padding as isize;
-                    if iy < 0 || iy >= h as isize {
+    dst.par_chunks_mut(wo * row_len).enumerate().for_each(|(row, out)| {
+        let (img, oy) = (row / ho, row % ho);
+        let base = img * h * w * c;
+        for ox in 0..wo {
+            let out_px = &mut out[ox * row_len..(ox + 1) * row_len];
+            for ky in 0..k {
+                let iy = (oy * win.stride + ky) as isize - win.padding as isize;
+                if iy < 0 || iy >= h as isize {
+                    continue;
+                }
+                for kx in 0..k {
+                    let ix = (ox * win.stride + kx) as isize - win.padding as isize;
+                    if ix < 0 || ix >= w as isize {
                         continue;
                     }
-                    for kx in 0..k {
-                        let ix = (ox * win.stride + kx) as isize - win.padding as isize;
-                        if ix < 0 || ix >= w as isize {
-                            continue;
-                        }
-                        let s = base + (iy as usize * w + ix as usize) * c;
-                        let d = (ky * k + kx) * c;
-                        out_px[d..d + c].copy_from_slice(&src[s..s + c]);
-                    }
+                    let s = base + (iy as usize * w + ix as usize) * c;
+                    let d = (ky * k + kx) * c;
+                    out_px[d..d + c].copy_from_slice(&src[s..s + c]);
                 }
             }
-        });
+        }
+    });
     dst
 }
 
@@ -81,43 +79,37 @@ fn col2im_typed<T: Copy + Default + Send + Sync + std::ops::AddAssign>(
     let mut dst = vec![T::default(); n * h * w * c];
     // One parallel task per *input* image row: it gathers every (oy, ky) that
     // reads it, so no two tasks write the same element.
-    dst.par_chunks_mut(w * c)
-        .enumerate()
-        .for_each(|(row, out)| {
-            let (img, iy) = (row / h, row % h);
-            for ky in 0..k {
-                let num = iy as isize + win.padding as isize - ky as isize;
-                if num < 0 || num % win.stride as isize != 0 {
-                    continue;
-                }
-                let oy = (num / win.stride as isize) as usize;
-                if oy >= ho {
-                    continue;
-                }
-                for ox in 0..wo {
-                    let col_row = ((img * ho + oy) * wo + ox) * row_len;
-                    for kx in 0..k {
-                        let ix = (ox * win.stride + kx) as isize - win.padding as isize;
-                        if ix < 0 || ix >= w as isize {
-                            continue;
-                        }
-                        let s = col_row + (ky * k + kx) * c;
-                        let d = ix as usize * c;
-                        for (o, &v) in out[d..d + c].iter_mut().zip(&cols[s..s + c]) {
-                            *o += v;
-                        }
+    dst.par_chunks_mut(w * c).enumerate().for_each(|(row, out)| {
+        let (img, iy) = (row / h, row % h);
+        for ky in 0..k {
+            let num = iy as isize + win.padding as isize - ky as isize;
+            if num < 0 || num % win.stride as isize != 0 {
+                continue;
+            }
+            let oy = (num / win.stride as isize) as usize;
+            if oy >= ho {
+                continue;
+            }
+            for ox in 0..wo {
+                let col_row = ((img * ho + oy) * wo + ox) * row_len;
+                for kx in 0..k {
+                    let ix = (ox * win.stride + kx) as isize - win.padding as isize;
+                    if ix < 0 || ix >= w as isize {
+                        continue;
+                    }
+                    let s = col_row + (ky * k + kx) * c;
+                    let d = ix as usize * c;
+                    for (o, &v) in out[d..d + c].iter_mut().zip(&cols[s..s + c]) {
+                        *o += v;
                     }
                 }
             }
-        });
+        }
+    });
     dst
 }
 
-fn contiguous_slice<'a, T>(
-    data: &'a [T],
-    layout: &Layout,
-    op: &str,
-) -> candle_core::Result<&'a [T]> {
+fn contiguous_slice<'a, T>(data: &'a [T], layout: &Layout, op: &str) -> candle_core::Result<&'a [T]> {
     match layout.contiguous_offsets() {
         Some((start, end)) => Ok(&data[start..end]),
         None => candle_core::bail!("{op}: input must be contiguous"),
@@ -129,50 +121,24 @@ impl CustomOp1 for Im2Col {
         "im2col-nhwc"
     }
 
-    fn cpu_fwd(
-        &self,
-        storage: &CpuStorage,
-        layout: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
         let dims = layout.shape().dims4()?;
         let (n, h, w, c) = dims;
         let win = self.0;
         if h + 2 * win.padding < win.kernel || w + 2 * win.padding < win.kernel {
-            candle_core::bail!(
-                "im2col: {h}x{w} image is smaller than the {0}x{0} window",
-                win.kernel
-            )
+            candle_core::bail!("im2col: {h}x{w} image is smaller than the {0}x{0} window", win.kernel)
         }
-        let shape = Shape::from((
-            n * win.out_size(h) * win.out_size(w),
-            win.kernel * win.kernel * c,
-        ));
+        let shape = Shape::from((n * win.out_size(h) * win.out_size(w), win.kernel * win.kernel * c));
         let out = match storage {
-            CpuStorage::F32(d) => CpuStorage::F32(im2col_typed(
-                contiguous_slice(d, layout, "im2col")?,
-                dims,
-                win,
-            )),
-            CpuStorage::F64(d) => CpuStorage::F64(im2col_typed(
-                contiguous_slice(d, layout, "im2col")?,
-                dims,
-                win,
-            )),
+            CpuStorage::F32(d) => CpuStorage::F32(im2col_typed(contiguous_slice(d, layout, "im2col")?, dims, win)),
+            CpuStorage::F64(d) => CpuStorage::F64(im2col_typed(contiguous_slice(d, layout, "im2col")?, dims, win)),
             other => candle_core::bail!("im2col: unsupported dtype {:?} (use f32)", other.dtype()),
         };
         Ok((out, shape))
     }
 
-    fn bwd(
-        &self,
-        arg: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<Option<Tensor>> {
-        let op = Col2Im {
-            window: self.0,
-            dims: arg.dims4()?,
-        };
+    fn bwd(&self, arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> candle_core::Result<Option<Tensor>> {
+        let op = Col2Im { window: self.0, dims: arg.dims4()? };
         Ok(Some(grad_res.contiguous()?.apply_op1(op)?))
     }
 }
@@ -182,45 +148,22 @@ impl CustomOp1 for Col2Im {
         "col2im-nhwc"
     }
 
-    fn cpu_fwd(
-        &self,
-        storage: &CpuStorage,
-        layout: &Layout,
-    ) -> candle_core::Result<(CpuStorage, Shape)> {
+    fn cpu_fwd(&self, storage: &CpuStorage, layout: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
         let (n, h, w, c) = self.dims;
         let win = self.window;
-        let expected = (
-            n * win.out_size(h) * win.out_size(w),
-            win.kernel * win.kernel * c,
-        );
+        let expected = (n * win.out_size(h) * win.out_size(w), win.kernel * win.kernel * c);
         if layout.shape().dims2()? != expected {
-            candle_core::bail!(
-                "col2im: columns {:?}, expected {expected:?}",
-                layout.shape()
-            )
+            candle_core::bail!("col2im: columns {:?}, expected {expected:?}", layout.shape())
         }
         let out = match storage {
-            CpuStorage::F32(d) => CpuStorage::F32(col2im_typed(
-                contiguous_slice(d, layout, "col2im")?,
-                self.dims,
-                win,
-            )),
-            CpuStorage::F64(d) => CpuStorage::F64(col2im_typed(
-                contiguous_slice(d, layout, "col2im")?,
-                self.dims,
-                win,
-            )),
+            CpuStorage::F32(d) => CpuStorage::F32(col2im_typed(contiguous_slice(d, layout, "col2im")?, self.dims, win)),
+            CpuStorage::F64(d) => CpuStorage::F64(col2im_typed(contiguous_slice(d, layout, "col2im")?, self.dims, win)),
             other => candle_core::bail!("col2im: unsupported dtype {:?} (use f32)", other.dtype()),
         };
         Ok((out, Shape::from(self.dims)))
     }
 
-    fn bwd(
-        &self,
-        _arg: &Tensor,
-        _res: &Tensor,
-        grad_res: &Tensor,
-    ) -> candle_core::Result<Option<Tensor>> {
+    fn bwd(&self, _arg: &Tensor, _res: &Tensor, grad_res: &Tensor) -> candle_core::Result<Option<Tensor>> {
         Ok(Some(grad_res.contiguous()?.apply_op1(Im2Col(self.window))?))
     }
 }
@@ -230,50 +173,38 @@ impl CustomOp1 for Col2Im {
 /// backward sums each 2x2 block of the gradient for `coarse`.
 pub(crate) struct AddUpsampled2;
 
-fn add_upsampled2_typed<T: NormScalar>(
-    fine: &[T],
-    coarse: &[T],
-    (_, h, w, c): (usize, usize, usize, usize),
-) -> Vec<T> {
+fn add_upsampled2_typed<T: NormScalar>(fine: &[T], coarse: &[T], (_, h, w, c): (usize, usize, usize, usize)) -> Vec<T> {
     let mut out = vec![T::ZERO; fine.len()];
-    out.par_chunks_mut(w * c)
-        .zip(fine.par_chunks(w * c))
-        .enumerate()
-        .for_each(|(row, (out, fine))| {
-            let (img, y) = (row / h, row % h);
-            let coarse_row = ((img * (h / 2)) + y / 2) * (w / 2) * c;
-            for x in 0..w {
-                let src = &coarse[coarse_row + (x / 2) * c..coarse_row + (x / 2 + 1) * c];
-                for i in 0..c {
-                    out[x * c + i] = fine[x * c + i] + src[i];
-                }
+    out.par_chunks_mut(w * c).zip(fine.par_chunks(w * c)).enumerate().for_each(|(row, (out, fine))| {
+        let (img, y) = (row / h, row % h);
+        let coarse_row = ((img * (h / 2)) + y / 2) * (w / 2) * c;
+        for x in 0..w {
+            let src = &coarse[coarse_row + (x / 2) * c..coarse_row + (x / 2 + 1) * c];
+            for i in 0..c {
+                out[x * c + i] = fine[x * c + i] + src[i];
             }
-        });
+        }
+    });
     out
 }
 
-fn sum_blocks2_typed<T: NormScalar>(
-    grad: &[T],
-    (n, h, w, c): (usize, usize, usize, usize),
-) -> Vec<T> {
+fn sum_blocks2_typed<T: NormScalar>(grad: &[T], (n, h, w, c): (usize, usize, usize, usize)) -> Vec<T> {
     let (hc, wc) = (h / 2, w / 2);
     let mut out = vec![T::ZERO; n * hc * wc * c];
-    out.par_chunks_mut(wc * c)
-        .enumerate()
-        .for_each(|(row, out)| {
-            let (img, yc) = (row / hc, row % hc);
-            for dy in 0..2 {
-                let g_row = ((img * h) + 2 * yc + dy) * w * c;
-                for xc in 0..wc {
-                    for dx in 0..2 {
-                        let g = &grad[g_row + (2 * xc + dx) * c..g_row + (2 * xc + dx + 1) * c];
-                        for i in 0..c {
-                            out[xc * c + i] += g[i];
-                        }
+    out.par_chunks_mut(wc * c).enumerate().for_each(|(row, out)| {
+        let (img, yc) = (row / hc, row % hc);
+        for dy in 0..2 {
+            let g_row = ((img * h) + 2 * yc + dy) * w * c;
+            for xc in 0..wc {
+                for dx in 0..2 {
+                    let g = &grad[g_row + (2 * xc + dx) * c..g_row + (2 * xc + dx + 1) * c];
+                    for i in 0..c {
+                        out[xc * c + i] += g[i];
                     }
                 }
             }
-        });
+        }
+    });
     out
 }
 
@@ -409,10 +340,7 @@ fn fast_exp_f32(x: f32) -> f32 {
     let n = shifted.to_bits().wrapping_sub(ROUND.to_bits()) as i32;
     let nf = shifted - ROUND;
     let r = (x - nf * LN2_HI) - nf * LN2_LO;
-    let p = 1.0
-        + r * (1.0
-            + r * (0.5
-                + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
+    let p = 1.0 + r * (1.0 + r * (0.5 + r * (1.0 / 6.0 + r * (1.0 / 24.0 + r * (1.0 / 120.0 + r * (1.0 / 720.0))))));
     p * f32::from_bits(((n + 127) as u32) << 23)
 }
 
@@ -447,18 +375,16 @@ fn layer_norm_silu_fwd<T: NormScalar>(x: &[T], gamma: &[T], beta: &[T], eps: f64
     let c = gamma.len();
     let eps = T::from_f64(eps);
     let mut out = vec![T::ZERO; x.len()];
-    out.par_chunks_mut(c * NORM_ROWS_PER_TASK)
-        .zip(x.par_chunks(c * NORM_ROWS_PER_TASK))
-        .for_each(|(out, x)| {
-            for (o_row, x_row) in out.chunks_mut(c).zip(x.chunks(c)) {
-                let (mean, rstd) = row_stats(x_row, eps);
-                // Branch-free, index-free loop: vectorises (see fast_exp_f32).
-                for (((o, &xv), &g), &b) in o_row.iter_mut().zip(x_row).zip(gamma).zip(beta) {
-                    let z = (xv - mean) * rstd * g + b;
-                    *o = z * sigmoid(z);
-                }
+    out.par_chunks_mut(c * NORM_ROWS_PER_TASK).zip(x.par_chunks(c * NORM_ROWS_PER_TASK)).for_each(|(out, x)| {
+        for (o_row, x_row) in out.chunks_mut(c).zip(x.chunks(c)) {
+            let (mean, rstd) = row_stats(x_row, eps);
+            // Branch-free, index-free loop: vectorises (see fast_exp_f32).
+            for (((o, &xv), &g), &b) in o_row.iter_mut().zip(x_row).zip(gamma).zip(beta) {
+                let z = (xv - mean) * rstd * g + b;
+                *o = z * sigmoid(z);
             }
-        });
+        }
+    });
     out
 }
 
@@ -487,13 +413,7 @@ fn layer_norm_silu_bwd<T: NormScalar>(
             for ((dx_row, x_row), dy_row) in dx.chunks_mut(c).zip(x.chunks(c)).zip(dy.chunks(c)) {
                 let (mean, rstd) = row_stats(x_row, eps);
                 // Vectorisable part first: normalised input, pre-activation, sigmoid.
-                for ((((xh, zi), &xv), &g), &b) in xhat
-                    .iter_mut()
-                    .zip(z.iter_mut())
-                    .zip(x_row)
-                    .zip(gamma)
-                    .zip(beta)
-                {
+                for ((((xh, zi), &xv), &g), &b) in xhat.iter_mut().zip(z.iter_mut()).zip(x_row).zip(gamma).zip(beta) {
                     *xh = (xv - mean) * rstd;
                     *zi = *xh * g + b;
                 }
@@ -547,30 +467,21 @@ impl candle_core::CustomOp3 for LayerNormSilu {
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let c = l2.shape().elem_count();
         if l1.shape().dims().last() != Some(&c) || l3.shape().elem_count() != c {
-            candle_core::bail!(
-                "layer-norm-silu: x {:?}, gamma {:?}, beta {:?}",
-                l1.shape(),
-                l2.shape(),
-                l3.shape()
-            )
+            candle_core::bail!("layer-norm-silu: x {:?}, gamma {:?}, beta {:?}", l1.shape(), l2.shape(), l3.shape())
         }
         let out = match (s1, s2, s3) {
-            (CpuStorage::F32(x), CpuStorage::F32(g), CpuStorage::F32(b)) => {
-                CpuStorage::F32(layer_norm_silu_fwd(
-                    contiguous_slice(x, l1, "layer-norm-silu")?,
-                    contiguous_slice(g, l2, "layer-norm-silu")?,
-                    contiguous_slice(b, l3, "layer-norm-silu")?,
-                    self.eps,
-                ))
-            }
-            (CpuStorage::F64(x), CpuStorage::F64(g), CpuStorage::F64(b)) => {
-                CpuStorage::F64(layer_norm_silu_fwd(
-                    contiguous_slice(x, l1, "layer-norm-silu")?,
-                    contiguous_slice(g, l2, "layer-norm-silu")?,
-                    contiguous_slice(b, l3, "layer-norm-silu")?,
-                    self.eps,
-                ))
-            }
+            (CpuStorage::F32(x), CpuStorage::F32(g), CpuStorage::F32(b)) => CpuStorage::F32(layer_norm_silu_fwd(
+                contiguous_slice(x, l1, "layer-norm-silu")?,
+                contiguous_slice(g, l2, "layer-norm-silu")?,
+                contiguous_slice(b, l3, "layer-norm-silu")?,
+                self.eps,
+            )),
+            (CpuStorage::F64(x), CpuStorage::F64(g), CpuStorage::F64(b)) => CpuStorage::F64(layer_norm_silu_fwd(
+                contiguous_slice(x, l1, "layer-norm-silu")?,
+                contiguous_slice(g, l2, "layer-norm-silu")?,
+                contiguous_slice(b, l3, "layer-norm-silu")?,
+                self.eps,
+            )),
             _ => candle_core::bail!("layer-norm-silu: x, gamma, beta must all be f32 (or all f64)"),
         };
         Ok((out, l1.shape().clone()))
@@ -620,44 +531,19 @@ mod tests {
         // <im2col(x), y> == <x, col2im(y)> for random x, y: the backward is right.
         let dev = Device::Cpu;
         for win in [
-            Window {
-                kernel: 3,
-                stride: 1,
-                padding: 1,
-            },
-            Window {
-                kernel: 3,
-                stride: 2,
-                padding: 1,
-            },
-            Window {
-                kernel: 2,
-                stride: 2,
-                padding: 0,
-            },
+            Window { kernel: 3, stride: 1, padding: 1 },
+            Window { kernel: 3, stride: 2, padding: 1 },
+            Window { kernel: 2, stride: 2, padding: 0 },
         ] {
             let dims = (2, 7, 6, 4);
             let x = Var::from_tensor(&Tensor::randn(0f64, 1.0, dims, &dev).unwrap()).unwrap();
             let cols = x.as_tensor().apply_op1(Im2Col(win)).unwrap();
             let y = Tensor::randn(0f64, 1.0, cols.shape(), &dev).unwrap();
-            let lhs = (&cols * &y)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .to_scalar::<f64>()
-                .unwrap();
+            let lhs = (&cols * &y).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap();
             let grads = (&cols * &y).unwrap().sum_all().unwrap().backward().unwrap();
             let gx = grads.get(&x).unwrap();
-            let rhs = (x.as_tensor() * gx)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-                .to_scalar::<f64>()
-                .unwrap();
-            assert!(
-                (lhs - rhs).abs() < 1e-9 * lhs.abs().max(1.0),
-                "{win:?}: {lhs} vs {rhs}"
-            );
+            let rhs = (x.as_tensor() * gx).unwrap().sum_all().unwrap().to_scalar::<f64>().unwrap();
+            assert!((lhs - rhs).abs() < 1e-9 * lhs.abs().max(1.0), "{win:?}: {lhs} vs {rhs}");
         }
     }
 
@@ -680,9 +566,7 @@ mod tests {
         let x = Tensor::randn(0f64, 2.0, (2, 4, 6, 5), &dev).unwrap();
         let gamma = Tensor::randn(1f64, 0.3, 5, &dev).unwrap();
         let beta = Tensor::randn(0f64, 0.3, 5, &dev).unwrap();
-        let fused = x
-            .apply_op3(&gamma, &beta, LayerNormSilu { eps: 1e-5 })
-            .unwrap();
+        let fused = x.apply_op3(&gamma, &beta, LayerNormSilu { eps: 1e-5 }).unwrap();
         let mean = x.mean_keepdim(3).unwrap();
         let centred = x.broadcast_sub(&mean).unwrap();
         let var = centred.sqr().unwrap().mean_keepdim(3).unwrap();
@@ -695,14 +579,7 @@ mod tests {
             .unwrap()
             .silu()
             .unwrap();
-        let diff = (fused - composed)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f64>()
-            .unwrap();
+        let diff = (fused - composed).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f64>().unwrap();
         assert!(diff < 1e-12, "norm-silu {diff}");
 
         let coarse = Tensor::randn(0f64, 1.0, (2, 2, 3, 5), &dev).unwrap();
@@ -714,14 +591,7 @@ mod tests {
             .unwrap()
             .reshape((2, 4, 6, 5))
             .unwrap();
-        let diff = (fused - (&x + up).unwrap())
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f64>()
-            .unwrap();
+        let diff = (fused - (&x + up).unwrap()).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f64>().unwrap();
         assert_eq!(diff, 0.0);
     }
 }

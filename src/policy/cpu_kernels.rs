@@ -108,11 +108,7 @@ pub(crate) use simd_kernel;
 /// `a * b + c`, fused when `FMA` (the caller's build has cheap FMA).
 #[inline(always)]
 pub fn madd<const FMA: bool>(a: f32, b: f32, c: f32) -> f32 {
-    if FMA {
-        a.mul_add(b, c)
-    } else {
-        a * b + c
-    }
+    if FMA { a.mul_add(b, c) } else { a * b + c }
 }
 
 const EXP_LOG2E: f32 = std::f32::consts::LOG2_E;
@@ -121,14 +117,7 @@ const EXP_LN2_LO: f32 = -2.121_944_4e-4;
 const EXP_SHIFTER: f32 = 12_582_912.0; // 1.5 * 2^23: adding it rounds to an integer
 const EXP_MIN: f32 = -87.3;
 const EXP_MAX: f32 = 88.3;
-const EXP_POLY: [f32; 6] = [
-    1.987_569_1e-4,
-    1.398_199_9e-3,
-    8.333_452e-3,
-    4.166_579_6e-2,
-    1.666_666_5e-1,
-    0.5,
-];
+const EXP_POLY: [f32; 6] = [1.987_569_1e-4, 1.398_199_9e-3, 8.333_452e-3, 4.166_579_6e-2, 1.666_666_5e-1, 0.5];
 
 /// e^x, branch-free (Cody-Waite reduction, cephes polynomial), 2 ulp.
 /// Arguments are clamped to [-87.3, 88.3].
@@ -244,9 +233,7 @@ pub fn lane_sum(v: &Lanes) -> f32 {
 #[inline(always)]
 pub fn load_lanes(src: &[f32], start: usize, width: usize) -> Lanes {
     if width == LANES {
-        let full: &Lanes = src[start..start + LANES]
-            .try_into()
-            .unwrap_or(&[0.0; LANES]);
+        let full: &Lanes = src[start..start + LANES].try_into().unwrap_or(&[0.0; LANES]);
         *full
     } else {
         let mut v = [0.0f32; LANES];
@@ -283,11 +270,7 @@ pub(crate) fn f32_data<'a>(s: &'a CpuStorage, what: &str) -> candle_core::Result
 }
 
 /// The `elem_count` elements of a contiguous tensor layout, or an error.
-pub(crate) fn contiguous_data<'a>(
-    s: &'a CpuStorage,
-    l: &Layout,
-    what: &str,
-) -> candle_core::Result<&'a [f32]> {
+pub(crate) fn contiguous_data<'a>(s: &'a CpuStorage, l: &Layout, what: &str) -> candle_core::Result<&'a [f32]> {
     let data = f32_data(s, what)?;
     match l.contiguous_offsets() {
         Some((start, end)) => Ok(&data[start..end]),
@@ -322,15 +305,9 @@ impl RowView {
     pub fn new(l: &Layout, what: &str) -> candle_core::Result<Self> {
         let (dims, strides) = (l.dims(), l.stride());
         if dims.len() != 3 || (strides[2] != 1 && dims[2] > 1) {
-            candle_core::bail!(
-                "{what}: expected a rank-3 tensor with a contiguous last dimension, got {l:?}"
-            )
+            candle_core::bail!("{what}: expected a rank-3 tensor with a contiguous last dimension, got {l:?}")
         }
-        Ok(Self {
-            dims: [dims[0], dims[1], dims[2]],
-            offset: l.start_offset(),
-            strides: [strides[0], strides[1]],
-        })
+        Ok(Self { dims: [dims[0], dims[1], dims[2]], offset: l.start_offset(), strides: [strides[0], strides[1]] })
     }
 
     /// Start of row (i0, i1) in the storage.
@@ -362,10 +339,7 @@ unsafe impl Sync for DisjointWriter {}
 
 impl DisjointWriter {
     pub fn new(buffer: &mut [f32]) -> Self {
-        Self {
-            ptr: buffer.as_mut_ptr(),
-            len: buffer.len(),
-        }
+        Self { ptr: buffer.as_mut_ptr(), len: buffer.len() }
     }
 
     /// Writes `values` at `start..start + values.len()`.
@@ -376,10 +350,7 @@ impl DisjointWriter {
     /// same index.
     #[inline(always)]
     pub unsafe fn write_slice(&self, start: usize, values: &[f32]) {
-        assert!(
-            start + values.len() <= self.len,
-            "DisjointWriter: write out of bounds"
-        );
+        assert!(start + values.len() <= self.len, "DisjointWriter: write out of bounds");
         if values.len() == LANES {
             // a fixed-size copy compiles to one vector store instead of a memcpy call
             let lanes: &Lanes = values.try_into().unwrap_or(&[0.0; LANES]);
@@ -421,29 +392,20 @@ mod tests {
         for (&x, &e) in xs.iter().zip(&out) {
             let r = (x as f64).exp();
             if x > -87.0 && x < 88.0 {
-                assert!(
-                    ((e as f64 - r) / r).abs() < 3e-7,
-                    "exp({x}) = {e}, libm {r}"
-                );
+                assert!(((e as f64 - r) / r).abs() < 3e-7, "exp({x}) = {e}, libm {r}");
             }
         }
         apply_all(&xs, &mut out, 1);
         for (&x, &s) in xs.iter().zip(&out) {
             let r = (x as f64).exp().ln_1p();
             if x > -87.0 {
-                assert!(
-                    ((s as f64 - r) / r).abs() < 1e-6,
-                    "softplus({x}) = {s}, ref {r}"
-                );
+                assert!(((s as f64 - r) / r).abs() < 1e-6, "softplus({x}) = {s}, ref {r}");
             }
         }
         apply_all(&xs, &mut out, 2);
         for (&x, &s) in xs.iter().zip(&out) {
             let r = 1.0 / (1.0 + (-x as f64).exp());
-            assert!(
-                (s as f64 - r).abs() < 1e-6 * r.max(1e-30) + 1e-38,
-                "sigmoid({x}) = {s}, ref {r}"
-            );
+            assert!((s as f64 - r).abs() < 1e-6 * r.max(1e-30) + 1e-38, "sigmoid({x}) = {s}, ref {r}");
         }
         let lanes: Lanes = std::array::from_fn(|k| k as f32);
         assert_eq!(lane_sum(&lanes), 120.0);

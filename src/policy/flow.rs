@@ -34,10 +34,7 @@ pub struct LossWeights {
 
 impl Default for LossWeights {
     fn default() -> Self {
-        Self {
-            cfm: 100.0,
-            open: 10.0,
-        }
+        Self { cfm: 100.0, open: 10.0 }
     }
 }
 
@@ -80,11 +77,7 @@ pub fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
 }
 
 /// Draws `batch` flow times in [0, 1) (`[B]` as a Vec, f32).
-pub fn sample_flow_times<R: Rng + ?Sized>(
-    rng: &mut R,
-    batch: usize,
-    sampling: FlowTimeSampling,
-) -> Result<Vec<f32>> {
+pub fn sample_flow_times<R: Rng + ?Sized>(rng: &mut R, batch: usize, sampling: FlowTimeSampling) -> Result<Vec<f32>> {
     sampling.validate()?;
     let times = (0..batch)
         .map(|_| match sampling {
@@ -100,15 +93,8 @@ pub fn sample_flow_times<R: Rng + ?Sized>(
 }
 
 /// Source noise `a0 ~ N(0, I)` of the flow, `[batch, dims]` f32 on `device`.
-pub fn sample_source_noise<R: Rng + ?Sized>(
-    rng: &mut R,
-    batch: usize,
-    dims: usize,
-    device: &Device,
-) -> Result<Tensor> {
-    let values: Vec<f32> = (0..batch * dims)
-        .map(|_| standard_normal(rng) as f32)
-        .collect();
+pub fn sample_source_noise<R: Rng + ?Sized>(rng: &mut R, batch: usize, dims: usize, device: &Device) -> Result<Tensor> {
+    let values: Vec<f32> = (0..batch * dims).map(|_| standard_normal(rng) as f32).collect();
     Ok(Tensor::from_vec(values, (batch, dims), device)?)
 }
 
@@ -121,11 +107,7 @@ fn check_same_shape(what: &str, a: &Tensor, b: &Tensor) -> Result<()> {
         )));
     }
     if a.dtype() != b.dtype() {
-        return Err(PolicyError::Invalid(format!(
-            "{what}: dtypes differ, {:?} vs {:?}",
-            a.dtype(),
-            b.dtype()
-        )));
+        return Err(PolicyError::Invalid(format!("{what}: dtypes differ, {:?} vs {:?}", a.dtype(), b.dtype())));
     }
     Ok(())
 }
@@ -152,9 +134,7 @@ fn broadcast_times(t: &Tensor, like: &Tensor) -> Result<Tensor> {
 pub fn interpolate(a0: &Tensor, a1: &Tensor, t: &Tensor) -> Result<Tensor> {
     check_same_shape("interpolate(a0, a1)", a0, a1)?;
     if a0.rank() < 1 {
-        return Err(PolicyError::Invalid(
-            "interpolate: actions must be batched, [B, D]".into(),
-        ));
+        return Err(PolicyError::Invalid("interpolate: actions must be batched, [B, D]".into()));
     }
     let t = broadcast_times(t, a1)?;
     // a0 + t * (a1 - a0) == t*a1 + (1-t)*a0.
@@ -189,23 +169,15 @@ pub fn flow_training_sample<R: Rng + ?Sized>(
     rng: &mut R,
     sampling: FlowTimeSampling,
 ) -> Result<FlowTrainingSample> {
-    let (batch, dims) = a1.dims2().map_err(|_| {
-        PolicyError::Invalid(format!(
-            "expert actions must be [B, {ACTION_DIMS}], got {:?}",
-            a1.dims()
-        ))
-    })?;
+    let (batch, dims) = a1
+        .dims2()
+        .map_err(|_| PolicyError::Invalid(format!("expert actions must be [B, {ACTION_DIMS}], got {:?}", a1.dims())))?;
     let a1 = a1.to_dtype(DType::F32)?;
     let a0 = sample_source_noise(rng, batch, dims, a1.device())?;
     let t = Tensor::from_vec(sample_flow_times(rng, batch, sampling)?, batch, a1.device())?;
     let a_t = interpolate(&a0, &a1, &t)?;
     let target_velocity = target_velocity(&a0, &a1)?;
-    Ok(FlowTrainingSample {
-        a0,
-        t,
-        a_t,
-        target_velocity,
-    })
+    Ok(FlowTrainingSample { a0, t, a_t, target_velocity })
 }
 
 /// Mean binary cross-entropy with logits, computed stably as
@@ -265,9 +237,7 @@ where
     F: FnMut(&Tensor, f32) -> Result<Tensor>,
 {
     if steps == 0 {
-        return Err(PolicyError::Invalid(
-            "euler_sample: steps must be at least 1 (the paper uses 2..50)".into(),
-        ));
+        return Err(PolicyError::Invalid("euler_sample: steps must be at least 1 (the paper uses 2..50)".into()));
     }
     let dt = 1.0 / steps as f64;
     let mut a = a0;
@@ -301,16 +271,7 @@ mod tests {
     }
 
     fn max_abs_diff(a: &Tensor, b: &Tensor) -> f32 {
-        (a - b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .flatten_all()
-            .unwrap()
-            .max(0)
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
+        (a - b).unwrap().abs().unwrap().flatten_all().unwrap().max(0).unwrap().to_scalar::<f32>().unwrap()
     }
 
     #[test]
@@ -319,15 +280,9 @@ mod tests {
         let a1 = t2(&[2.0, 3.0, -2.0, 0.0], 2);
         let t = Tensor::new(&[0.25f32, 1.0], &Device::Cpu).unwrap();
         let a_t = interpolate(&a0, &a1, &t).unwrap();
-        assert_eq!(
-            a_t.to_vec2::<f32>().unwrap(),
-            vec![vec![0.5, 1.5], vec![-2.0, 0.0]]
-        );
+        assert_eq!(a_t.to_vec2::<f32>().unwrap(), vec![vec![0.5, 1.5], vec![-2.0, 0.0]]);
         let u = target_velocity(&a0, &a1).unwrap();
-        assert_eq!(
-            u.to_vec2::<f32>().unwrap(),
-            vec![vec![2.0, 2.0], vec![-4.0, -4.0]]
-        );
+        assert_eq!(u.to_vec2::<f32>().unwrap(), vec![vec![2.0, 2.0], vec![-4.0, -4.0]]);
         // t = 0 gives the noise.
         let t0 = Tensor::zeros(2, DType::F32, &Device::Cpu).unwrap();
         assert_eq!(max_abs_diff(&interpolate(&a0, &a1, &t0).unwrap(), &a0), 0.0);
@@ -337,10 +292,7 @@ mod tests {
     fn interpolate_rejects_wrong_time_shape() {
         let a = t2(&[0.0; 18], 2);
         let t = Tensor::zeros(3, DType::F32, &Device::Cpu).unwrap();
-        assert!(matches!(
-            interpolate(&a, &a, &t),
-            Err(PolicyError::Invalid(_))
-        ));
+        assert!(matches!(interpolate(&a, &a, &t), Err(PolicyError::Invalid(_))));
     }
 
     #[test]
@@ -362,31 +314,19 @@ mod tests {
     #[test]
     fn flow_times_lie_in_unit_interval_and_noise_is_standard() {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
-        for sampling in [
-            FlowTimeSampling::Uniform,
-            FlowTimeSampling::LogitNormal {
-                mean: 0.0,
-                std: 1.0,
-            },
-        ] {
+        for sampling in [FlowTimeSampling::Uniform, FlowTimeSampling::LogitNormal { mean: 0.0, std: 1.0 }] {
             let t = sample_flow_times(&mut rng, 10_000, sampling).unwrap();
             assert!(t.iter().all(|&x| (0.0..1.0).contains(&x)));
             let mean = t.iter().map(|&x| x as f64).sum::<f64>() / t.len() as f64;
             assert!((mean - 0.5).abs() < 0.02, "{sampling:?} mean {mean}");
         }
-        let bad = FlowTimeSampling::LogitNormal {
-            mean: 0.0,
-            std: -1.0,
-        };
+        let bad = FlowTimeSampling::LogitNormal { mean: 0.0, std: -1.0 };
         assert!(sample_flow_times(&mut rng, 1, bad).is_err());
         let noise = sample_source_noise(&mut rng, 1000, ACTION_DIMS, &Device::Cpu).unwrap();
         let v: Vec<f32> = noise.flatten_all().unwrap().to_vec1().unwrap();
         let mean = v.iter().map(|&x| x as f64).sum::<f64>() / v.len() as f64;
         let var = v.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / v.len() as f64;
-        assert!(
-            mean.abs() < 0.05 && (var - 1.0).abs() < 0.05,
-            "mean {mean} var {var}"
-        );
+        assert!(mean.abs() < 0.05 && (var - 1.0).abs() < 0.05, "mean {mean} var {var}");
     }
 
     #[test]
@@ -395,16 +335,12 @@ mod tests {
         let target = t2(&[0.0, 2.0, 3.0, 6.0], 2);
         let logit = Tensor::new(&[0.0f32, 2.0], &Device::Cpu).unwrap();
         let label = Tensor::new(&[1.0f32, 0.0], &Device::Cpu).unwrap();
-        let (total, cfm, bce) =
-            flow_matching_loss(&v_pred, &target, &logit, &label, &LossWeights::default()).unwrap();
+        let (total, cfm, bce) = flow_matching_loss(&v_pred, &target, &logit, &label, &LossWeights::default()).unwrap();
         let cfm = cfm.to_scalar::<f32>().unwrap();
         let bce = bce.to_scalar::<f32>().unwrap();
         assert!((cfm - 5.0 / 4.0).abs() < 1e-6);
         let expected_bce = ((2f64).ln() + (1.0 + 2f64.exp()).ln()) / 2.0;
-        assert!(
-            (bce as f64 - expected_bce).abs() < 1e-6,
-            "{bce} vs {expected_bce}"
-        );
+        assert!((bce as f64 - expected_bce).abs() < 1e-6, "{bce} vs {expected_bce}");
         let total = total.to_scalar::<f32>().unwrap();
         assert!((total as f64 - (100.0 * 1.25 + 10.0 * expected_bce)).abs() < 1e-4);
     }
@@ -416,10 +352,7 @@ mod tests {
         let bce = bce_with_logits(logits.as_tensor(), &labels).unwrap();
         let value = bce.to_scalar::<f32>().unwrap();
         let expected = (1000.0 + 1000.0 + (1.0 + (-0.5f64).exp()).ln()) / 3.0;
-        assert!(
-            value.is_finite() && ((value as f64) - expected).abs() < 1e-3,
-            "{value}"
-        );
+        assert!(value.is_finite() && ((value as f64) - expected).abs() < 1e-3, "{value}");
         // d/dx mean BCE = (sigmoid(x) - y) / N.
         let grads = bce.backward().unwrap();
         let g: Vec<f32> = grads.get(&logits).unwrap().to_vec1().unwrap();
@@ -461,10 +394,7 @@ mod tests {
     #[test]
     fn euler_rejects_zero_steps_and_bad_velocity_shape() {
         let a0 = t2(&[1.0, 2.0], 1);
-        assert!(matches!(
-            euler_sample(a0.clone(), 0, |a, _| Ok(a.clone())),
-            Err(PolicyError::Invalid(_))
-        ));
+        assert!(matches!(euler_sample(a0.clone(), 0, |a, _| Ok(a.clone())), Err(PolicyError::Invalid(_))));
         let r = euler_sample(a0, 2, |_, _| Ok(t2(&[1.0, 2.0, 3.0], 1)));
         assert!(matches!(r, Err(PolicyError::Invalid(_))));
     }

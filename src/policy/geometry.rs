@@ -211,9 +211,8 @@ pub fn lift_depth(
                 continue;
             }
             let cam = [(u as f32 - cx) * z / fx, (v as f32 - cy) * z / fy, z];
-            let world: [f32; 3] = std::array::from_fn(|i| {
-                pose[i][0] * cam[0] + pose[i][1] * cam[1] + pose[i][2] * cam[2] + pose[i][3]
-            });
+            let world: [f32; 3] =
+                std::array::from_fn(|i| pose[i][0] * cam[0] + pose[i][1] * cam[1] + pose[i][2] * cam[2] + pose[i][3]);
             cells.push(Some(world));
         }
     }
@@ -614,11 +613,8 @@ fn box_distance2(p: [f32; 3], lo: [f32; 3], hi: [f32; 3]) -> f32 {
 #[inline(always)]
 fn update_leaf(xs: &[f32], ys: &[f32], zs: &[f32], dist: &mut [f32], p: [f32; 3]) -> f32 {
     let mut lane_max = [f32::NEG_INFINITY; LANES];
-    for (((x, y), z), d) in xs
-        .chunks_exact(LANES)
-        .zip(ys.chunks_exact(LANES))
-        .zip(zs.chunks_exact(LANES))
-        .zip(dist.chunks_exact_mut(LANES))
+    for (((x, y), z), d) in
+        xs.chunks_exact(LANES).zip(ys.chunks_exact(LANES)).zip(zs.chunks_exact(LANES)).zip(dist.chunks_exact_mut(LANES))
     {
         for l in 0..LANES {
             let dx = x[l] - p[0];
@@ -1032,7 +1028,12 @@ mod tests {
                 assert_close(m6[r], m[r], 1e-5, "matrix -> 6D -> matrix");
             }
             let q6 = quaternion_from_6d(quaternion_to_6d(q).unwrap());
-            assert_close(rotation_to_6d(&matrix_from_quaternion(q6).unwrap()), rotation_to_6d(&m), 1e-5, "q -> 6D -> q");
+            assert_close(
+                rotation_to_6d(&matrix_from_quaternion(q6).unwrap()),
+                rotation_to_6d(&m),
+                1e-5,
+                "q -> 6D -> q",
+            );
         }
     }
 
@@ -1066,10 +1067,10 @@ mod tests {
         let big = 3.0e38f32;
         let cases: [[f32; 6]; 12] = [
             [0.0; 6],
-            [1.0, 2.0, 3.0, 2.0, 4.0, 6.0],     // parallel
-            [1.0, 2.0, 3.0, -1.0, -2.0, -3.0],  // antiparallel
-            [0.0, 0.0, 0.0, 0.3, -0.2, 0.9],    // zero first column
-            [0.3, -0.2, 0.9, 0.0, 0.0, 0.0],    // zero second column
+            [1.0, 2.0, 3.0, 2.0, 4.0, 6.0],      // parallel
+            [1.0, 2.0, 3.0, -1.0, -2.0, -3.0],   // antiparallel
+            [0.0, 0.0, 0.0, 0.3, -0.2, 0.9],     // zero first column
+            [0.3, -0.2, 0.9, 0.0, 0.0, 0.0],     // zero second column
             [f32::NAN, 1.0, 0.0, 0.0, 1.0, 0.0], // NaN
             [f32::INFINITY, 0.0, 0.0, f32::NEG_INFINITY, 1.0, f32::NAN],
             [big, big, big, big, big, -big],    // huge
@@ -1151,7 +1152,10 @@ mod tests {
                     let p = cell.expect("valid depth gives a point");
                     assert!((p[2] - 0.75).abs() < 1e-4, "point {p:?} is off the table plane");
                     let ([pu, pv], z) = project_to_pixel(p, &k, &pose).unwrap();
-                    assert!((pu - u as f32).abs() < 1e-3 && (pv - v as f32).abs() < 1e-3, "{p:?} -> ({pu}, {pv}) not ({u}, {v})");
+                    assert!(
+                        (pu - u as f32).abs() < 1e-3 && (pv - v as f32).abs() < 1e-3,
+                        "{p:?} -> ({pu}, {pv}) not ({u}, {v})"
+                    );
                     assert!((z - depth[v * size + u]).abs() < 1e-4);
                 }
             }
@@ -1216,13 +1220,21 @@ mod tests {
         for (size, n) in [(2usize, 1usize), (3, 2), (17, 9), (100, 50), (1000, 300), (5000, 1024), (4096, 1024)] {
             let cloud = random_cloud(&mut rng, size);
             let first = rng.random_range(0..size);
-            assert_eq!(farthest_point_sample(&cloud, n, first).unwrap(), reference_fps(&cloud, n, first), "{size} -> {n}");
+            assert_eq!(
+                farthest_point_sample(&cloud, n, first).unwrap(),
+                reference_fps(&cloud, n, first),
+                "{size} -> {n}"
+            );
         }
         // Clustered and anisotropic clouds.
         let mut cloud: Vec<[f32; 3]> = (0..3000)
             .map(|i| {
                 let c = (i % 5) as f32 * 0.4 - 0.8;
-                [c + rng.random_range(-0.01f32..0.01), rng.random_range(-1.0f32..1.0) * 0.01, rng.random_range(0.0f32..0.05)]
+                [
+                    c + rng.random_range(-0.01f32..0.01),
+                    rng.random_range(-1.0f32..1.0) * 0.01,
+                    rng.random_range(0.0f32..0.05),
+                ]
             })
             .collect();
         cloud.extend(random_cloud(&mut rng, 200));
@@ -1283,13 +1295,17 @@ mod tests {
         let quadratic = RadiusSchedule::dynamic(0.2, 4.0, 2.0).unwrap();
         assert!((quadratic.radius(0.5) - (0.2 + 3.8 * 0.25)).abs() < 1e-6);
         assert_eq!(RadiusSchedule::Global.radius(0.9), f32::INFINITY);
-        for (r_min, r_max, power) in [(0.0, 4.0, 1.0), (0.5, 3.0, 1.0), (5.0, 4.0, 1.0), (0.5, 4.0, 0.0), (f32::NAN, 4.0, 1.0)] {
+        for (r_min, r_max, power) in
+            [(0.0, 4.0, 1.0), (0.5, 3.0, 1.0), (5.0, 4.0, 1.0), (0.5, 4.0, 0.0), (f32::NAN, 4.0, 1.0)]
+        {
             assert!(RadiusSchedule::dynamic(r_min, r_max, power).is_err(), "{r_min} {r_max} {power}");
         }
         let json = serde_json::to_string(&schedule).unwrap();
         assert_eq!(serde_json::from_str::<RadiusSchedule>(&json).unwrap(), schedule);
         assert_eq!(serde_json::from_str::<RadiusSchedule>(r#"{"kind":"global"}"#).unwrap(), RadiusSchedule::Global);
-        assert!(serde_json::from_str::<RadiusSchedule>(r#"{"kind":"dynamic","r_min":0.4,"r_max":1.0,"power":1}"#).is_err());
+        assert!(
+            serde_json::from_str::<RadiusSchedule>(r#"{"kind":"dynamic","r_min":0.4,"r_max":1.0,"power":1}"#).is_err()
+        );
     }
 
     #[test]
@@ -1300,10 +1316,13 @@ mod tests {
         let wrong_length = global_geometric_tokens(&cloud, 100).unwrap();
         for schedule in [RadiusSchedule::default(), RadiusSchedule::Global] {
             // t = 0 (global), every point inside (r ~ 3.3), a local ball, the fallback (far centre)
-            for (center, t) in [([0.1, 0.2, -0.3], 0.0), ([0.0, 0.0, 0.0], 0.05), ([0.2, -0.3, 0.1], 0.7), ([3.0, 3.0, 3.0], 1.0)] {
+            for (center, t) in
+                [([0.1, 0.2, -0.3], 0.0), ([0.0, 0.0, 0.0], 0.05), ([0.2, -0.3, 0.1], 0.7), ([3.0, 3.0, 3.0], 1.0)]
+            {
                 let plain = select_geometric_tokens(&cloud, center, t, 256, 32, &schedule).unwrap();
                 for g in [&global, &wrong_length] {
-                    let cached = select_geometric_tokens_cached(&cloud, Some(g), center, t, 256, 32, &schedule).unwrap();
+                    let cached =
+                        select_geometric_tokens_cached(&cloud, Some(g), center, t, 256, 32, &schedule).unwrap();
                     assert_eq!(cached, plain, "t {t}, centre {center:?}, {schedule:?}");
                 }
             }
@@ -1330,7 +1349,11 @@ mod tests {
                 let d = ((p[0] - center[0]).powi(2) + (p[1] - center[1]).powi(2) + (p[2] - center[2]).powi(2)).sqrt();
                 assert!(d <= selection.radius + 1e-6, "token {i} at distance {d} > r = {}", selection.radius);
             }
-            assert_eq!(select_geometric_tokens(&cloud, center, t, 256, 32, &schedule).unwrap(), selection, "deterministic");
+            assert_eq!(
+                select_geometric_tokens(&cloud, center, t, 256, 32, &schedule).unwrap(),
+                selection,
+                "deterministic"
+            );
         }
     }
 
@@ -1418,7 +1441,8 @@ mod tests {
     #[test]
     fn positional_encoding_layout() {
         let device = Device::Cpu;
-        let xyz = Tensor::new(&[[[0.1f32, -0.5, 0.9], [1.0, 0.0, -1.0]], [[0.3, 0.3, 0.3], [-0.2, 0.7, 0.0]]], &device).unwrap();
+        let xyz = Tensor::new(&[[[0.1f32, -0.5, 0.9], [1.0, 0.0, -1.0]], [[0.3, 0.3, 0.3], [-0.2, 0.7, 0.0]]], &device)
+            .unwrap();
         let encoded = positional_encoding(&xyz, 120).unwrap();
         assert_eq!(encoded.dims(), &[2, 2, 120]);
         let values = encoded.to_vec3::<f32>().unwrap();

@@ -132,26 +132,12 @@ struct ConvNhwc {
 }
 
 impl ConvNhwc {
-    fn new(
-        cin: usize,
-        cout: usize,
-        window: Window,
-        zero_init: bool,
-        vb: VarBuilder,
-    ) -> Result<Self> {
+    fn new(cin: usize, cout: usize, window: Window, zero_init: bool, vb: VarBuilder) -> Result<Self> {
         let k = window.kernel;
-        let init = if zero_init {
-            Init::Const(0.0)
-        } else {
-            candle_nn::init::DEFAULT_KAIMING_NORMAL
-        };
+        let init = if zero_init { Init::Const(0.0) } else { candle_nn::init::DEFAULT_KAIMING_NORMAL };
         let weight = vb.get_with_hints((cout, cin, k, k), "weight", init)?;
         let bias = vb.get_with_hints(cout, "bias", Init::Const(0.0))?;
-        Ok(Self {
-            weight,
-            bias,
-            window,
-        })
+        Ok(Self { weight, bias, window })
     }
 
     /// `[N, H, W, Cin]` -> `[N, Ho, Wo, Cout]`.
@@ -171,10 +157,7 @@ impl ConvNhwc {
     fn forward_columns(&self, cols: &Tensor, (n, ho, wo): (usize, usize, usize)) -> Result<Tensor> {
         let (cout, cin, k, _) = self.weight.dims4()?;
         // [Cout, Cin, ky, kx] -> [(ky, kx, Cin), Cout] to match the column order.
-        let w_mat = self
-            .weight
-            .permute((2, 3, 1, 0))?
-            .reshape((k * k * cin, cout))?;
+        let w_mat = self.weight.permute((2, 3, 1, 0))?.reshape((k * k * cin, cout))?;
         let y = cols.matmul(&w_mat)?.broadcast_add(&self.bias)?;
         Ok(y.reshape((n, ho, wo, cout))?)
     }
@@ -202,10 +185,7 @@ impl NormSilu {
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         match &self.affine {
             None => Ok(x.silu()?),
-            Some((gamma, beta)) => {
-                Ok(x.contiguous()?
-                    .apply_op3(gamma, beta, LayerNormSilu { eps: 1e-5 })?)
-            }
+            Some((gamma, beta)) => Ok(x.contiguous()?.apply_op3(gamma, beta, LayerNormSilu { eps: 1e-5 })?),
         }
     }
 }
@@ -220,11 +200,7 @@ struct ResidualBlock {
     conv2: ConvNhwc,
 }
 
-const CONV3X3: Window = Window {
-    kernel: 3,
-    stride: 1,
-    padding: 1,
-};
+const CONV3X3: Window = Window { kernel: 3, stride: 1, padding: 1 };
 
 impl ResidualBlock {
     fn new(channels: usize, norm: EncoderNorm, vb: VarBuilder) -> Result<Self> {
@@ -281,41 +257,18 @@ impl ImageEncoder {
     pub fn new(config: ImageEncoderConfig, vb: VarBuilder) -> Result<Self> {
         config.validate()?;
         let p = config.patch_size;
-        let stem = ConvNhwc::new(
-            3,
-            config.widths[0],
-            Window {
-                kernel: p,
-                stride: p,
-                padding: 0,
-            },
-            false,
-            vb.pp("stem"),
-        )?;
+        let stem =
+            ConvNhwc::new(3, config.widths[0], Window { kernel: p, stride: p, padding: 0 }, false, vb.pp("stem"))?;
         let mut levels = Vec::with_capacity(config.widths.len());
         let mut heads = Vec::with_capacity(config.widths.len());
-        let one = Window {
-            kernel: 1,
-            stride: 1,
-            padding: 0,
-        };
+        let one = Window { kernel: 1, stride: 1, padding: 0 };
         for (l, (&width, &n_blocks)) in config.widths.iter().zip(&config.blocks).enumerate() {
             let vb_l = vb.pp(format!("levels.{l}"));
             let down = if l == 0 {
                 None
             } else {
-                let window = Window {
-                    kernel: 2,
-                    stride: 2,
-                    padding: 0,
-                };
-                Some(ConvNhwc::new(
-                    config.widths[l - 1],
-                    width,
-                    window,
-                    false,
-                    vb_l.pp("down"),
-                )?)
+                let window = Window { kernel: 2, stride: 2, padding: 0 };
+                Some(ConvNhwc::new(config.widths[l - 1], width, window, false, vb_l.pp("down"))?)
             };
             let blocks = (0..n_blocks)
                 .map(|b| ResidualBlock::new(width, config.norm, vb_l.pp(format!("blocks.{b}"))))
@@ -327,12 +280,7 @@ impl ImageEncoder {
                 proj: ConvNhwc::new(width, config.out_channels, one, false, vb_h.pp("proj"))?,
             });
         }
-        Ok(Self {
-            config,
-            stem,
-            levels,
-            heads,
-        })
+        Ok(Self { config, stem, levels, heads })
     }
 
     pub fn config(&self) -> &ImageEncoderConfig {
@@ -367,26 +315,22 @@ impl ImageEncoder {
         let row_len = p * p * 3;
         let mut cols = vec![0f32; n * side * side * row_len];
         // One task per row of patches.
-        cols.par_chunks_mut(side * row_len)
-            .enumerate()
-            .for_each(|(row, out)| {
-                let (img, py) = (row / side, row % side);
-                for px in 0..side {
-                    for ky in 0..p {
-                        for kx in 0..p {
-                            let (y, x) = (py * p + ky, px * p + kx);
-                            for c in 0..3 {
-                                let v = pixels[((img * 3 + c) * size + y) * size + x];
-                                out[px * row_len + (ky * p + kx) * 3 + c] =
-                                    v as f32 * scale[c] + shift[c];
-                            }
+        cols.par_chunks_mut(side * row_len).enumerate().for_each(|(row, out)| {
+            let (img, py) = (row / side, row % side);
+            for px in 0..side {
+                for ky in 0..p {
+                    for kx in 0..p {
+                        let (y, x) = (py * p + ky, px * p + kx);
+                        for c in 0..3 {
+                            let v = pixels[((img * 3 + c) * size + y) * size + x];
+                            out[px * row_len + (ky * p + kx) * 3 + c] = v as f32 * scale[c] + shift[c];
                         }
                     }
                 }
-            });
+            }
+        });
         let dev = self.stem.weight.device();
-        let cols = Tensor::from_vec(cols, (n * side * side, row_len), dev)?
-            .to_dtype(self.stem.weight.dtype())?;
+        let cols = Tensor::from_vec(cols, (n * side * side, row_len), dev)?.to_dtype(self.stem.weight.dtype())?;
         Ok((cols, (n, side, side)))
     }
 
@@ -411,9 +355,7 @@ impl ImageEncoder {
             let projected = head.forward(features)?;
             y = Some(match y {
                 None => projected,
-                Some(coarser) => projected
-                    .contiguous()?
-                    .apply_op2(&coarser.contiguous()?, AddUpsampled2)?,
+                Some(coarser) => projected.contiguous()?.apply_op2(&coarser.contiguous()?, AddUpsampled2)?,
             });
         }
         y.ok_or_else(|| PolicyError::Invalid("image encoder has no levels".into()))
@@ -422,10 +364,7 @@ impl ImageEncoder {
     /// Per-pixel features: u8 RGB `[N, 3, H, W]` (N = B*cams) ->
     /// `[N, C, H/s, W/s]` f32.
     pub fn forward(&self, images: &Tensor) -> Result<Tensor> {
-        Ok(self
-            .forward_channels_last(images)?
-            .permute((0, 3, 1, 2))?
-            .contiguous()?)
+        Ok(self.forward_channels_last(images)?.permute((0, 3, 1, 2))?.contiguous()?)
     }
 }
 
@@ -472,38 +411,17 @@ mod tests {
     }
 
     fn values(t: &Tensor) -> Vec<f64> {
-        t.flatten_all()
-            .unwrap()
-            .to_dtype(DType::F64)
-            .unwrap()
-            .to_vec1()
-            .unwrap()
+        t.flatten_all().unwrap().to_dtype(DType::F64).unwrap().to_vec1().unwrap()
     }
 
     #[test]
     fn conv_nhwc_matches_reference_for_all_windows() {
         let dev = Device::Cpu;
         for win in [
-            Window {
-                kernel: 3,
-                stride: 1,
-                padding: 1,
-            },
-            Window {
-                kernel: 2,
-                stride: 2,
-                padding: 0,
-            },
-            Window {
-                kernel: 4,
-                stride: 4,
-                padding: 0,
-            },
-            Window {
-                kernel: 3,
-                stride: 2,
-                padding: 1,
-            },
+            Window { kernel: 3, stride: 1, padding: 1 },
+            Window { kernel: 2, stride: 2, padding: 0 },
+            Window { kernel: 4, stride: 4, padding: 0 },
+            Window { kernel: 3, stride: 2, padding: 1 },
         ] {
             let dims = (2, 8, 8, 3);
             let x = Tensor::randn(0f64, 1.0, dims, &dev).unwrap();
@@ -544,21 +462,8 @@ mod tests {
             .unwrap()
             .contiguous()
             .unwrap();
-        let expected = nhwc
-            .apply_op1(Im2Col(Window {
-                kernel: 4,
-                stride: 4,
-                padding: 0,
-            }))
-            .unwrap();
-        let diff = (cols - expected)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
+        let expected = nhwc.apply_op1(Im2Col(Window { kernel: 4, stride: 4, padding: 0 })).unwrap();
+        let diff = (cols - expected).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f32>().unwrap();
         assert!(diff < 1e-5, "{diff}");
     }
 
@@ -577,9 +482,7 @@ mod tests {
         let mut s = seed;
         let data: Vec<u8> = (0..n * 3 * size * size)
             .map(|_| {
-                s = s
-                    .wrapping_mul(6364136223846793005)
-                    .wrapping_add(1442695040888963407);
+                s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
                 (s >> 56) as u8
             })
             .collect();
@@ -596,27 +499,13 @@ mod tests {
         assert_eq!(y.dtype(), DType::F32);
         let y_last = enc.forward_channels_last(&random_images(3, 32, 1)).unwrap();
         assert_eq!(y_last.dims(), &[3, 8, 8, 6]);
-        let diff = (y_last.permute((0, 3, 1, 2)).unwrap() - &y)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .sum_all()
-            .unwrap();
+        let diff = (y_last.permute((0, 3, 1, 2)).unwrap() - &y).unwrap().abs().unwrap().sum_all().unwrap();
         assert_eq!(diff.to_scalar::<f32>().unwrap(), 0.0);
         let wrong_size = random_images(1, 16, 1);
-        assert!(matches!(
-            enc.forward(&wrong_size),
-            Err(PolicyError::Invalid(_))
-        ));
+        assert!(matches!(enc.forward(&wrong_size), Err(PolicyError::Invalid(_))));
         let wrong_dtype = random_images(1, 32, 1).to_dtype(DType::F32).unwrap();
-        assert!(matches!(
-            enc.forward(&wrong_dtype),
-            Err(PolicyError::Invalid(_))
-        ));
-        let bad = ImageEncoderConfig {
-            image_size: 36,
-            ..small_config()
-        };
+        assert!(matches!(enc.forward(&wrong_dtype), Err(PolicyError::Invalid(_))));
+        let bad = ImageEncoderConfig { image_size: 36, ..small_config() };
         assert!(bad.validate().is_err());
     }
 
@@ -628,10 +517,7 @@ mod tests {
         let data = varmap.data().lock().unwrap();
         assert_eq!(data["stem.weight"].dims(), &[32, 3, 4, 4]);
         assert_eq!(data["levels.1.down.weight"].dims(), &[96, 32, 2, 2]);
-        assert_eq!(
-            data["levels.2.blocks.0.conv1.weight"].dims(),
-            &[128, 128, 3, 3]
-        );
+        assert_eq!(data["levels.2.blocks.0.conv1.weight"].dims(), &[128, 128, 3, 3]);
         assert_eq!(data["heads.0.proj.weight"].dims(), &[120, 32, 1, 1]);
         assert_eq!(data["heads.2.proj.weight"].dims(), &[120, 128, 1, 1]);
         assert_eq!(data["heads.1.norm.weight"].dims(), &[96]);
@@ -647,18 +533,13 @@ mod tests {
         // Make the zero-initialised convs non-zero so every path carries gradient.
         for (name, var) in varmap.data().lock().unwrap().iter() {
             if name.ends_with("conv2.weight") {
-                var.set(&Tensor::randn(0f64, 0.1, var.shape(), &dev).unwrap())
-                    .unwrap();
+                var.set(&Tensor::randn(0f64, 0.1, var.shape(), &dev).unwrap()).unwrap();
             }
         }
         let images = random_images(2, 32, 3);
         let proj = Tensor::randn(0f64, 1.0, (2, 6, 8, 8), &dev).unwrap();
-        let loss = |enc: &ImageEncoder| -> Tensor {
-            (enc.forward(&images).unwrap() * &proj)
-                .unwrap()
-                .sum_all()
-                .unwrap()
-        };
+        let loss =
+            |enc: &ImageEncoder| -> Tensor { (enc.forward(&images).unwrap() * &proj).unwrap().sum_all().unwrap() };
         let grads = loss(&enc).backward().unwrap();
         let data = varmap.data().lock().unwrap().clone();
         for name in [
@@ -672,33 +553,22 @@ mod tests {
             "heads.0.proj.weight",
         ] {
             let var = &data[name];
-            let g = values(
-                grads
-                    .get(var)
-                    .unwrap_or_else(|| panic!("no gradient for {name}")),
-            );
+            let g = values(grads.get(var).unwrap_or_else(|| panic!("no gradient for {name}")));
             let base = values(var.as_tensor());
             for idx in [0usize, base.len() / 2, base.len() - 1] {
                 let eps = 1e-5;
                 let mut plus = base.clone();
                 plus[idx] += eps;
-                var.set(&Tensor::from_vec(plus, var.shape(), &dev).unwrap())
-                    .unwrap();
+                var.set(&Tensor::from_vec(plus, var.shape(), &dev).unwrap()).unwrap();
                 let lp = loss(&enc).to_scalar::<f64>().unwrap();
                 let mut minus = base.clone();
                 minus[idx] -= eps;
-                var.set(&Tensor::from_vec(minus, var.shape(), &dev).unwrap())
-                    .unwrap();
+                var.set(&Tensor::from_vec(minus, var.shape(), &dev).unwrap()).unwrap();
                 let lm = loss(&enc).to_scalar::<f64>().unwrap();
-                var.set(&Tensor::from_vec(base.clone(), var.shape(), &dev).unwrap())
-                    .unwrap();
+                var.set(&Tensor::from_vec(base.clone(), var.shape(), &dev).unwrap()).unwrap();
                 let numeric = (lp - lm) / (2.0 * eps);
                 let tol = 1e-6 * numeric.abs().max(1.0);
-                assert!(
-                    (numeric - g[idx]).abs() < tol,
-                    "{name}[{idx}]: autodiff {} vs numeric {numeric}",
-                    g[idx]
-                );
+                assert!((numeric - g[idx]).abs() < tol, "{name}[{idx}]: autodiff {} vs numeric {numeric}", g[idx]);
             }
         }
     }
@@ -713,14 +583,7 @@ mod tests {
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);
         let enc = ImageEncoder::new(small_config(), vb.pp("encoder")).unwrap();
         let readout = candle_nn::linear(6, 1, vb.pp("readout")).unwrap();
-        let mut opt = AdamW::new(
-            &varmap,
-            AdamWConfig {
-                learning_rate: 3e-3,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let mut opt = AdamW::new(&varmap, AdamWConfig { learning_rate: 3e-3, ..Default::default() }).unwrap();
         let images = random_images(4, 32, 9);
         // Target: red channel averaged over 4x4 patches, in [0, 1].
         let target = images

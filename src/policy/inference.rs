@@ -16,9 +16,9 @@ use super::error::{PolicyError, Result};
 use super::flow::{euler_sample, sample_source_noise};
 use super::geometry::RadiusSchedule;
 use super::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
-use super::runtime::in_pool;
 use super::model::{ACTION_DIMS, EncodedObservation, FlowRam, device};
 use super::observation::{KeyframePose, Observation};
+use super::runtime::in_pool;
 use super::text::TextEncoder;
 use super::train::read_checkpoint_config;
 
@@ -68,7 +68,9 @@ impl Policy {
             let root = if path.join("checkpoints").is_dir() { path.join("checkpoints") } else { path.to_path_buf() };
             CheckpointStore::open(&root)?.latest()?.ok_or_else(|| PolicyError::File {
                 path: path.into(),
-                message: "no checkpoint here: expected a run folder (runs/NAME) or one of its checkpoints/step-* folders".into(),
+                message:
+                    "no checkpoint here: expected a run folder (runs/NAME) or one of its checkpoints/step-* folders"
+                        .into(),
             })?
         };
         let config = read_checkpoint_config(&dir)?;
@@ -103,7 +105,12 @@ impl Policy {
     }
 
     /// Samples keyframes for an encoded observation.
-    pub fn sample(&self, prepared: &PreparedObservation, encoded: &EncodedObservation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
+    pub fn sample(
+        &self,
+        prepared: &PreparedObservation,
+        encoded: &EncodedObservation,
+        options: &SamplingOptions,
+    ) -> Result<Vec<KeyframePose>> {
         self.sample_profiled(prepared, encoded, options, &mut SampleProfile::default())
     }
 

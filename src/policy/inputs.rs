@@ -37,7 +37,11 @@ impl Augmentation {
     pub const NONE: Augmentation = Augmentation { shift: [0.0; 3], brightness: 1.0 };
 }
 
-pub fn prepare(observation: &Observation, config: &PolicyConfig, text: &mut TextEncoder) -> Result<PreparedObservation> {
+pub fn prepare(
+    observation: &Observation,
+    config: &PolicyConfig,
+    text: &mut TextEncoder,
+) -> Result<PreparedObservation> {
     let o = &config.observation;
     if observation.size != o.image_size {
         return Err(PolicyError::Invalid(format!(
@@ -59,7 +63,10 @@ pub fn prepare(observation: &Observation, config: &PolicyConfig, text: &mut Text
     let t = tokens.dim(0)?.min(o.language_tokens);
     let mut language = tokens.narrow(0, 0, t)?;
     if t < o.language_tokens {
-        language = Tensor::cat(&[language, Tensor::zeros((o.language_tokens - t, TEXT_WIDTH), DType::F32, tokens.device())?], 0)?;
+        language = Tensor::cat(
+            &[language, Tensor::zeros((o.language_tokens - t, TEXT_WIDTH), DType::F32, tokens.device())?],
+            0,
+        )?;
     }
     Ok(PreparedObservation { images, cameras: observation.cameras.len(), cloud, proprio, language })
 }

@@ -18,7 +18,7 @@
 
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::mamba_ops::{ada_rms_norm, causal_conv_silu, gated_residual, silu_gate};
-use crate::policy::scan::{selective_scan, selective_scan_with_state, selective_scan_with_state_gated, ScanInputs};
+use crate::policy::scan::{ScanInputs, selective_scan, selective_scan_with_state, selective_scan_with_state_gated};
 use candle_core::{DType, Device, Shape, Tensor};
 use candle_nn::{Init, VarBuilder};
 use serde::{Deserialize, Serialize};
@@ -105,9 +105,7 @@ impl MambaConfig {
         ];
         for (name, v) in sizes {
             if v == 0 {
-                return Err(PolicyError::Invalid(format!(
-                    "MambaConfig.{name} must be > 0"
-                )));
+                return Err(PolicyError::Invalid(format!("MambaConfig.{name} must be > 0")));
             }
         }
         let valid = self.dt_min > 0.0 && self.dt_min <= self.dt_max && self.norm_eps > 0.0;
@@ -137,12 +135,7 @@ pub enum Conditioning {
 
 impl Conditioning {
     /// Prefix tokens with `prefix_cond`, the rest with `suffix_cond` ([B, d_cond] each).
-    pub fn prefix_suffix(
-        prefix_len: usize,
-        prefix_cond: Tensor,
-        suffix_len: usize,
-        suffix_cond: Tensor,
-    ) -> Self {
+    pub fn prefix_suffix(prefix_len: usize, prefix_cond: Tensor, suffix_len: usize, suffix_cond: Tensor) -> Self {
         Self::Segments(vec![(prefix_len, prefix_cond), (suffix_len, suffix_cond)])
     }
 }
@@ -203,10 +196,7 @@ fn get_or_init(
 /// PyTorch's default initialisation of Linear/Conv weights: U(-1/sqrt(fan_in), 1/sqrt(fan_in)).
 fn uniform_fan_in(fan_in: usize) -> Init {
     let bound = 1.0 / (fan_in as f64).sqrt();
-    Init::Uniform {
-        lo: -bound,
-        up: bound,
-    }
+    Init::Uniform { lo: -bound, up: bound }
 }
 
 /// `x @ w^T` for x [B, L, In], w [Out, In]: one batched matmul against the
@@ -253,13 +243,7 @@ impl MambaMixer {
     /// evenly over the channels rather than drawn at random), dt_proj weight
     /// U(+-dt_rank^-1/2), the rest PyTorch's defaults.
     pub fn new(cfg: &MambaConfig, vb: VarBuilder) -> Result<Self> {
-        let (c, di, n, r, k) = (
-            cfg.d_model,
-            cfg.d_inner(),
-            cfg.d_state,
-            cfg.dt_rank(),
-            cfg.d_conv,
-        );
+        let (c, di, n, r, k) = (cfg.d_model, cfg.d_inner(), cfg.d_state, cfg.dt_rank(), cfg.d_conv);
         let in_proj = vb.get_with_hints((2 * di, c), "in_proj.weight", uniform_fan_in(c))?;
         let conv_weight = vb.get_with_hints((di, 1, k), "conv1d.weight", uniform_fan_in(k))?;
         let conv_bias = vb.get_with_hints(di, "conv1d.bias", uniform_fan_in(k))?;
@@ -269,9 +253,7 @@ impl MambaMixer {
             let (lo, hi) = (cfg.dt_min.ln(), cfg.dt_max.ln());
             let bias: Vec<f32> = (0..di)
                 .map(|d| {
-                    let dt = (lo + (hi - lo) * (d as f64 + 0.5) / di as f64)
-                        .exp()
-                        .max(1e-4);
+                    let dt = (lo + (hi - lo) * (d as f64 + 0.5) / di as f64).exp().max(1e-4);
                     (dt + (-(-dt).exp_m1()).ln()) as f32 // softplus^-1
                 })
                 .collect();
@@ -318,11 +300,7 @@ impl MambaMixer {
     /// `h`: [B, L, C] (normalised, modulated tokens) -> [B, L, C]. With
     /// `cache`, runs from `state` (or zeros) without gradient and returns the
     /// state after the last token.
-    fn forward(
-        &self,
-        h: &Tensor,
-        cache: Option<Option<&LayerState>>,
-    ) -> Result<(Tensor, Option<LayerState>)> {
+    fn forward(&self, h: &Tensor, cache: Option<Option<&LayerState>>) -> Result<(Tensor, Option<LayerState>)> {
         let (di, n, r) = (self.d_inner, self.d_state, self.dt_rank);
         let state = cache.flatten();
         // in_proj as two products (rows 0..Di -> x, Di..2Di -> z): same FLOPs as one
@@ -330,40 +308,21 @@ impl MambaMixer {
         // would zero-pad and add two [B, L, 2 Di] gradients.
         let x = linear(h, &self.in_proj.narrow(0, 0, di)?)?; // [B, L, Di]
         let z = linear(h, &self.in_proj.narrow(0, di, di)?)?; // [B, L, Di]
-        let u = causal_conv_silu(
-            &x,
-            &self.conv_weight,
-            &self.conv_bias,
-            state.map(|s| &s.conv_tail),
-        )?;
+        let u = causal_conv_silu(&x, &self.conv_weight, &self.conv_bias, state.map(|s| &s.conv_tail))?;
         let dbc = linear(&u, &self.x_proj)?; // [B, L, dt_rank + 2N]
         let delta_raw = linear(&dbc.narrow(2, 0, r)?, &self.dt_proj)?; // [B, L, Di]
         let bm = dbc.narrow(2, r, n)?;
         let cm = dbc.narrow(2, r + n, n)?;
         let a = self.a_log.exp()?.neg()?;
-        let inputs = ScanInputs {
-            u: &u,
-            delta_raw: &delta_raw,
-            b: &bm,
-            c: &cm,
-            a: &a,
-            d: &self.d,
-            delta_bias: &self.dt_bias,
-        };
+        let inputs =
+            ScanInputs { u: &u, delta_raw: &delta_raw, b: &bm, c: &cm, a: &a, d: &self.d, delta_bias: &self.dt_bias };
         let (gated, new_state) = match cache {
             None => (silu_gate(&selective_scan(&inputs)?, &z)?, None),
             Some(state) => {
                 // inference: the gate is fused into the scan
-                let (gated, ssm_state) =
-                    selective_scan_with_state_gated(&inputs, state.map(|s| &s.ssm_state), &z)?;
+                let (gated, ssm_state) = selective_scan_with_state_gated(&inputs, state.map(|s| &s.ssm_state), &z)?;
                 let conv_tail = next_conv_tail(state.map(|s| &s.conv_tail), &x, self.d_conv - 1)?;
-                (
-                    gated,
-                    Some(LayerState {
-                        conv_tail,
-                        ssm_state,
-                    }),
-                )
+                (gated, Some(LayerState { conv_tail, ssm_state }))
             }
         };
         let out = linear(&gated, &self.out_proj)?;
@@ -377,7 +336,12 @@ impl MambaMixer {
     /// depends on all of them), but z, the gate and out_proj run on the last token or not at
     /// all: of the five projections, only in_proj's x half, x_proj and dt_proj stay full length.
     /// Returns ([B, 1, C] or nothing, the state after `h`).
-    fn forward_tail(&self, h: &Tensor, state: Option<&LayerState>, last_token: bool) -> Result<(Option<Tensor>, LayerState)> {
+    fn forward_tail(
+        &self,
+        h: &Tensor,
+        state: Option<&LayerState>,
+        last_token: bool,
+    ) -> Result<(Option<Tensor>, LayerState)> {
         let (di, n, r) = (self.d_inner, self.d_state, self.dt_rank);
         let l = h.dim(1)?;
         let x = linear(h, &self.in_proj.narrow(0, 0, di)?)?;
@@ -386,7 +350,8 @@ impl MambaMixer {
         let delta_raw = linear(&dbc.narrow(2, 0, r)?, &self.dt_proj)?;
         let (bm, cm) = (dbc.narrow(2, r, n)?, dbc.narrow(2, r + n, n)?);
         let a = self.a_log.exp()?.neg()?;
-        let inputs = ScanInputs { u: &u, delta_raw: &delta_raw, b: &bm, c: &cm, a: &a, d: &self.d, delta_bias: &self.dt_bias };
+        let inputs =
+            ScanInputs { u: &u, delta_raw: &delta_raw, b: &bm, c: &cm, a: &a, d: &self.d, delta_bias: &self.dt_bias };
         let (y, ssm_state) = selective_scan_with_state(&inputs, state.map(|s| &s.ssm_state))?;
         let conv_tail = next_conv_tail(state.map(|s| &s.conv_tail), &x, self.d_conv - 1)?;
         let out = if last_token {
@@ -410,9 +375,7 @@ fn next_conv_tail(old: Option<&Tensor>, x: &Tensor, k1: usize) -> Result<Tensor>
         Some(old) => old.clone(),
         None => Tensor::zeros((b, k1, di), DType::F32, x.device())?,
     };
-    Ok(Tensor::cat(&[&old, &x.contiguous()?], 1)?
-        .narrow(1, l, k1)?
-        .contiguous()?)
+    Ok(Tensor::cat(&[&old, &x.contiguous()?], 1)?.narrow(1, l, k1)?.contiguous()?)
 }
 
 /// Residual pre-norm block with AdaLN-Zero:
@@ -471,10 +434,7 @@ impl MambaLayer {
     fn modulation(&self, cond: &Conditioning, batch: usize, seq_len: usize) -> Result<Tensor> {
         let per_segment = |c: &Tensor, len: usize| -> Result<Tensor> {
             check_cond(c, &[batch, self.d_cond], "segment condition")?;
-            Ok(self
-                .ada_ln(c)?
-                .unsqueeze(1)?
-                .broadcast_as((batch, len, 3 * self.d_model))?)
+            Ok(self.ada_ln(c)?.unsqueeze(1)?.broadcast_as((batch, len, 3 * self.d_model))?)
         };
         match cond {
             Conditioning::Shared(c) => per_segment(c, seq_len),
@@ -520,7 +480,13 @@ impl MambaLayer {
 impl MambaLayer {
     /// [`MambaMixer::forward_tail`] inside the residual block: ([B, 1, C] output of the last
     /// token or nothing, the state).
-    fn forward_tail(&self, x: &Tensor, modulation: &Tensor, state: Option<&LayerState>, last_token: bool) -> Result<(Option<Tensor>, LayerState)> {
+    fn forward_tail(
+        &self,
+        x: &Tensor,
+        modulation: &Tensor,
+        state: Option<&LayerState>,
+        last_token: bool,
+    ) -> Result<(Option<Tensor>, LayerState)> {
         let c = self.d_model;
         let l = x.dim(1)?;
         let h = ada_rms_norm(x, &self.norm_weight, &modulation.narrow(2, 0, 2 * c)?, self.norm_eps)?;
@@ -569,16 +535,10 @@ impl MambaStack {
                 vb.device().location()
             )));
         }
-        let layers = (0..cfg.n_layers)
-            .map(|i| MambaLayer::new(cfg, vb.pp("layers").pp(i)))
-            .collect::<Result<Vec<_>>>()?;
-        let final_norm_weight =
-            vb.get_with_hints(cfg.d_model, "norm_f.weight", Init::Const(1.0))?;
-        Ok(Self {
-            cfg: cfg.clone(),
-            layers,
-            final_norm_weight,
-        })
+        let layers =
+            (0..cfg.n_layers).map(|i| MambaLayer::new(cfg, vb.pp("layers").pp(i))).collect::<Result<Vec<_>>>()?;
+        let final_norm_weight = vb.get_with_hints(cfg.d_model, "norm_f.weight", Init::Const(1.0))?;
+        Ok(Self { cfg: cfg.clone(), layers, final_norm_weight })
     }
 
     pub fn config(&self) -> &MambaConfig {
@@ -587,12 +547,7 @@ impl MambaStack {
 
     fn check_tokens(&self, x: &Tensor) -> Result<(usize, usize)> {
         match x.dims() {
-            &[b, l, c]
-                if c == self.cfg.d_model
-                    && l > 0
-                    && x.dtype() == DType::F32
-                    && x.device().is_cpu() =>
-            {
+            &[b, l, c] if c == self.cfg.d_model && l > 0 && x.dtype() == DType::F32 && x.device().is_cpu() => {
                 Ok((b, l))
             }
             _ => Err(PolicyError::Invalid(format!(
@@ -606,8 +561,7 @@ impl MambaStack {
 
     fn final_norm(&self, x: &Tensor, final_norm_weight: &Tensor) -> Result<Tensor> {
         let (b, l, c) = x.dims3()?;
-        let no_modulation =
-            Tensor::zeros((1, 1, 2 * c), DType::F32, &Device::Cpu)?.broadcast_as((b, l, 2 * c))?;
+        let no_modulation = Tensor::zeros((1, 1, 2 * c), DType::F32, &Device::Cpu)?.broadcast_as((b, l, 2 * c))?;
         ada_rms_norm(x, final_norm_weight, &no_modulation, self.cfg.norm_eps)
     }
 
@@ -645,19 +599,13 @@ impl MambaStack {
             let previous = state.map(|s| &s.layers[i]);
             let (out, new_state) = layer.forward(&x, &modulation, Some(previous))?;
             x = out;
-            layer_states.push(new_state.ok_or_else(|| {
-                PolicyError::Invalid("MambaStack: a cached layer returned no state".into())
-            })?);
+            layer_states.push(
+                new_state.ok_or_else(|| PolicyError::Invalid("MambaStack: a cached layer returned no state".into()))?,
+            );
         }
         let out = self.final_norm(&x, &self.final_norm_weight.detach())?;
         let tokens = state.map_or(0, |s| s.tokens) + l;
-        Ok((
-            out,
-            StackState {
-                layers: layer_states,
-                tokens,
-            },
-        ))
+        Ok((out, StackState { layers: layer_states, tokens }))
     }
 }
 
@@ -678,7 +626,13 @@ impl MambaStack {
         Ok(out.squeeze(1)?)
     }
 
-    fn forward_tail(&self, x: &Tensor, cond: &Conditioning, state: Option<&StackState>, last_token: bool) -> Result<(Option<Tensor>, StackState)> {
+    fn forward_tail(
+        &self,
+        x: &Tensor,
+        cond: &Conditioning,
+        state: Option<&StackState>,
+        last_token: bool,
+    ) -> Result<(Option<Tensor>, StackState)> {
         let Some((last, init)) = self.layers.split_last() else {
             return Err(PolicyError::Invalid("MambaStack: no layers".into()));
         };
@@ -692,7 +646,9 @@ impl MambaStack {
             let modulation = layer.modulation(&cond, b, l)?;
             let (out, new_state) = layer.forward(&x, &modulation, Some(state.map(|s| &s.layers[i])))?;
             x = out;
-            layer_states.push(new_state.ok_or_else(|| PolicyError::Invalid("MambaStack: a cached layer returned no state".into()))?);
+            layer_states.push(
+                new_state.ok_or_else(|| PolicyError::Invalid("MambaStack: a cached layer returned no state".into()))?,
+            );
         }
         let layer = last.detached();
         let modulation = layer.modulation(&cond, b, l)?;
@@ -708,12 +664,14 @@ impl MambaStack {
 
     fn check_state(&self, state: Option<&StackState>, batch: usize) -> Result<()> {
         match state {
-            Some(state) if state.layers.len() != self.layers.len() || state.batch_size() != batch => Err(PolicyError::Invalid(format!(
-                "MambaStack: cached state is for {} layers and batch {}, the stack has {} layers and the tokens batch {batch}",
-                state.layers.len(),
-                state.batch_size(),
-                self.layers.len()
-            ))),
+            Some(state) if state.layers.len() != self.layers.len() || state.batch_size() != batch => {
+                Err(PolicyError::Invalid(format!(
+                    "MambaStack: cached state is for {} layers and batch {}, the stack has {} layers and the tokens batch {batch}",
+                    state.layers.len(),
+                    state.batch_size(),
+                    self.layers.len()
+                )))
+            }
             _ => Ok(()),
         }
     }
@@ -722,9 +680,7 @@ impl MambaStack {
 fn detach_cond(cond: &Conditioning) -> Conditioning {
     match cond {
         Conditioning::Shared(c) => Conditioning::Shared(c.detach()),
-        Conditioning::Segments(s) => {
-            Conditioning::Segments(s.iter().map(|(l, c)| (*l, c.detach())).collect())
-        }
+        Conditioning::Segments(s) => Conditioning::Segments(s.iter().map(|(l, c)| (*l, c.detach())).collect()),
         Conditioning::PerToken(c) => Conditioning::PerToken(c.detach()),
     }
 }
@@ -734,12 +690,17 @@ impl StackState {
     /// cached observation).
     pub fn repeat(&self, n: usize) -> Result<Self> {
         if self.batch_size() != 1 {
-            return Err(PolicyError::Invalid(format!("only a batch-1 state can be repeated; this one has batch {}", self.batch_size())));
+            return Err(PolicyError::Invalid(format!(
+                "only a batch-1 state can be repeated; this one has batch {}",
+                self.batch_size()
+            )));
         }
         let layers = self
             .layers
             .iter()
-            .map(|l| Ok(LayerState { conv_tail: l.conv_tail.repeat((n, 1, 1))?, ssm_state: l.ssm_state.repeat((n, 1, 1))? }))
+            .map(|l| {
+                Ok(LayerState { conv_tail: l.conv_tail.repeat((n, 1, 1))?, ssm_state: l.ssm_state.repeat((n, 1, 1))? })
+            })
             .collect::<Result<Vec<_>>>()?;
         Ok(Self { layers, tokens: self.tokens })
     }

@@ -9,8 +9,8 @@
 //! over L (one AdaLN condition shared by all tokens of a segment).
 
 use crate::policy::cpu_kernels::{
-    contiguous_data, f32_data, lane_sum, madd, map_in_place, silu, silu_grad, simd_kernel,
-    with_captured, RowView, LANES,
+    LANES, RowView, contiguous_data, f32_data, lane_sum, madd, map_in_place, silu, silu_grad, simd_kernel,
+    with_captured,
 };
 use crate::policy::error::{PolicyError, Result};
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
@@ -20,20 +20,13 @@ use rayon::prelude::*;
 const ROWS_PER_TASK: usize = 64;
 
 fn check_rank3(t: &Tensor, what: &str) -> Result<(usize, usize, usize)> {
-    t.dims3().map_err(|_| {
-        PolicyError::Invalid(format!(
-            "{what}: expected [batch, seq_len, width], got {:?}",
-            t.shape()
-        ))
-    })
+    t.dims3()
+        .map_err(|_| PolicyError::Invalid(format!("{what}: expected [batch, seq_len, width], got {:?}", t.shape())))
 }
 
 fn check_shape(t: &Tensor, shape: &[usize], what: &str) -> Result<()> {
     if t.dims() != shape {
-        return Err(PolicyError::Invalid(format!(
-            "{what}: expected shape {shape:?}, got {:?}",
-            t.shape()
-        )));
+        return Err(PolicyError::Invalid(format!("{what}: expected shape {shape:?}, got {:?}", t.shape())));
     }
     Ok(())
 }
@@ -73,11 +66,7 @@ pub fn ada_rms_norm(x: &Tensor, weight: &Tensor, shift_scale: &Tensor, eps: f64)
     let (b, l, c) = check_rank3(x, "AdaLN RMSNorm x")?;
     check_shape(weight, &[c], "AdaLN RMSNorm weight")?;
     check_shape(shift_scale, &[b, l, 2 * c], "AdaLN RMSNorm shift/scale")?;
-    Ok(x.apply_op3(
-        &weight.contiguous()?,
-        shift_scale,
-        AdaRmsNorm { eps: eps as f32 },
-    )?)
+    Ok(x.apply_op3(&weight.contiguous()?, shift_scale, AdaRmsNorm { eps: eps as f32 })?)
 }
 
 struct AdaRmsNorm {
@@ -98,22 +87,14 @@ impl CustomOp3 for AdaRmsNorm {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, xv) = (
-            f32_data(s1, "AdaLN RMSNorm x")?,
-            RowView::new(l1, "AdaLN RMSNorm x")?,
-        );
+        let (x, xv) = (f32_data(s1, "AdaLN RMSNorm x")?, RowView::new(l1, "AdaLN RMSNorm x")?);
         let weight = contiguous_data(s2, l2, "AdaLN RMSNorm weight")?;
-        let (m, mv) = (
-            f32_data(s3, "AdaLN shift/scale")?,
-            RowView::new(l3, "AdaLN shift/scale")?,
-        );
+        let (m, mv) = (f32_data(s3, "AdaLN shift/scale")?, RowView::new(l3, "AdaLN shift/scale")?);
         let [batch, seq_len, c] = xv.dims;
         let mut out = vec![0f32; batch * seq_len * c];
         out.par_chunks_mut(ROWS_PER_TASK * c)
             .enumerate()
-            .for_each(|(task, out)| {
-                ada_rms_norm_rows(x, xv, weight, m, mv, self.eps, task * ROWS_PER_TASK, out)
-            });
+            .for_each(|(task, out)| ada_rms_norm_rows(x, xv, weight, m, mv, self.eps, task * ROWS_PER_TASK, out));
         Ok((CpuStorage::F32(out), Shape::from((batch, seq_len, c))))
     }
 
@@ -126,10 +107,7 @@ impl CustomOp3 for AdaRmsNorm {
         grad: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
         let (b, l, c) = x.dims3()?;
-        let op = AdaRmsNormBackward {
-            eps: self.eps,
-            grad: grad.contiguous()?,
-        };
+        let op = AdaRmsNormBackward { eps: self.eps, grad: grad.contiguous()? };
         let grads = x.apply_op3_no_bwd(weight, shift_scale, &op)?;
         let n = b * l * c;
         Ok((
@@ -181,15 +159,9 @@ impl CustomOp3 for AdaRmsNormBackward {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, xv) = (
-            f32_data(s1, "AdaLN RMSNorm x")?,
-            RowView::new(l1, "AdaLN RMSNorm x")?,
-        );
+        let (x, xv) = (f32_data(s1, "AdaLN RMSNorm x")?, RowView::new(l1, "AdaLN RMSNorm x")?);
         let weight = contiguous_data(s2, l2, "AdaLN RMSNorm weight")?;
-        let (m, mv) = (
-            f32_data(s3, "AdaLN shift/scale")?,
-            RowView::new(l3, "AdaLN shift/scale")?,
-        );
+        let (m, mv) = (f32_data(s3, "AdaLN shift/scale")?, RowView::new(l3, "AdaLN shift/scale")?);
         let [batch, seq_len, c] = xv.dims;
         let n = batch * seq_len * c;
         with_captured(&self.grad, "AdaLN RMSNorm dL/dout", |grad| {
@@ -201,18 +173,7 @@ impl CustomOp3 for AdaRmsNormBackward {
                 .zip(grad_m.par_chunks_mut(ROWS_PER_TASK * 2 * c))
                 .enumerate()
                 .map(|(task, (gx, gm))| {
-                    ada_rms_norm_backward_rows(
-                        x,
-                        xv,
-                        weight,
-                        m,
-                        mv,
-                        self.eps,
-                        grad,
-                        task * ROWS_PER_TASK,
-                        gx,
-                        gm,
-                    )
+                    ada_rms_norm_backward_rows(x, xv, weight, m, mv, self.eps, grad, task * ROWS_PER_TASK, gx, gm)
                 })
                 .collect::<Vec<Vec<f32>>>();
             let partial_w = sum_in_task_order(&partial_w, c);
@@ -283,19 +244,11 @@ simd_kernel! {
 ///   cached prefix), or `None` for zeros. With a tail the op has no backward.
 ///
 /// Returns u: [B, L, Di].
-pub fn causal_conv_silu(
-    x: &Tensor,
-    weight: &Tensor,
-    bias: &Tensor,
-    tail: Option<&Tensor>,
-) -> Result<Tensor> {
+pub fn causal_conv_silu(x: &Tensor, weight: &Tensor, bias: &Tensor, tail: Option<&Tensor>) -> Result<Tensor> {
     let (b, _, di) = check_rank3(x, "causal conv x")?;
-    let (di_w, k) = weight.dims2().map_err(|_| {
-        PolicyError::Invalid(format!(
-            "causal conv weight: expected [Di, K], got {:?}",
-            weight.shape()
-        ))
-    })?;
+    let (di_w, k) = weight
+        .dims2()
+        .map_err(|_| PolicyError::Invalid(format!("causal conv weight: expected [Di, K], got {:?}", weight.shape())))?;
     if di_w != di || k == 0 {
         return Err(PolicyError::Invalid(format!(
             "causal conv weight: expected [{di}, K>0], got {:?}",
@@ -308,9 +261,7 @@ pub fn causal_conv_silu(
         None => Ok(x.apply_op3(&weight, &bias, CausalConvSilu { tail: None })?),
         Some(tail) => {
             check_shape(tail, &[b, k - 1, di], "causal conv tail (cached state)")?;
-            let op = CausalConvSilu {
-                tail: Some(tail.contiguous()?),
-            };
+            let op = CausalConvSilu { tail: Some(tail.contiguous()?) };
             Ok(x.apply_op3_no_bwd(&weight, &bias, &op)?)
         }
     }
@@ -368,10 +319,7 @@ impl CustomOp3 for CausalConvSilu {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, xv) = (
-            f32_data(s1, "causal conv x")?,
-            RowView::new(l1, "causal conv x")?,
-        );
+        let (x, xv) = (f32_data(s1, "causal conv x")?, RowView::new(l1, "causal conv x")?);
         let weight = contiguous_data(s2, l2, "causal conv weight")?;
         let bias = contiguous_data(s3, l3, "causal conv bias")?;
         let [batch, seq_len, di] = xv.dims;
@@ -379,15 +327,11 @@ impl CustomOp3 for CausalConvSilu {
         let w = taps_major(weight, di, taps);
         let run = |tail: Option<&[f32]>| {
             let mut out = vec![0f32; batch * seq_len * di];
-            out.par_chunks_mut(seq_len * di)
-                .enumerate()
-                .for_each(|(b, out)| {
-                    out.par_chunks_mut(ROWS_PER_TASK * di)
-                        .enumerate()
-                        .for_each(|(task, out)| {
-                            conv_silu_rows(x, xv, tail, &w, bias, b, task * ROWS_PER_TASK, out)
-                        })
-                });
+            out.par_chunks_mut(seq_len * di).enumerate().for_each(|(b, out)| {
+                out.par_chunks_mut(ROWS_PER_TASK * di)
+                    .enumerate()
+                    .for_each(|(task, out)| conv_silu_rows(x, xv, tail, &w, bias, b, task * ROWS_PER_TASK, out))
+            });
             Ok((CpuStorage::F32(out), Shape::from((batch, seq_len, di))))
         };
         match &self.tail {
@@ -409,9 +353,7 @@ impl CustomOp3 for CausalConvSilu {
         }
         let (b, l, di) = x.dims3()?;
         let taps = weight.dim(1)?;
-        let op = CausalConvSiluBackward {
-            grad: grad.contiguous()?,
-        };
+        let op = CausalConvSiluBackward { grad: grad.contiguous()? };
         let grads = x.apply_op3_no_bwd(weight, bias, &op)?;
         let n = b * l * di;
         Ok((
@@ -482,10 +424,7 @@ impl CustomOp3 for CausalConvSiluBackward {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, xv) = (
-            f32_data(s1, "causal conv x")?,
-            RowView::new(l1, "causal conv x")?,
-        );
+        let (x, xv) = (f32_data(s1, "causal conv x")?, RowView::new(l1, "causal conv x")?);
         let weight = contiguous_data(s2, l2, "causal conv weight")?;
         let bias = contiguous_data(s3, l3, "causal conv bias")?;
         let [batch, seq_len, di] = xv.dims;
@@ -501,13 +440,9 @@ impl CustomOp3 for CausalConvSiluBackward {
                 .par_chunks_mut(seq_len * di)
                 .enumerate()
                 .flat_map(|(b, gx)| {
-                    gx.par_chunks_mut(ROWS_PER_TASK * di)
-                        .enumerate()
-                        .map(move |(task, gx)| (b, task, gx))
+                    gx.par_chunks_mut(ROWS_PER_TASK * di).enumerate().map(move |(task, gx)| (b, task, gx))
                 })
-                .map(|(b, task, gx)| {
-                    conv_silu_backward_rows(x, xv, &w, bias, grad, b, task * ROWS_PER_TASK, gx)
-                })
+                .map(|(b, task, gx)| conv_silu_backward_rows(x, xv, &w, bias, grad, b, task * ROWS_PER_TASK, gx))
                 .collect::<Vec<Vec<f32>>>();
             let partial = sum_in_task_order(&partial, (taps + 1) * di);
             for d in 0..di {
@@ -599,17 +534,12 @@ impl CustomOp2 for SiluGate {
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let y = contiguous_data(s1, l1, "SiLU gate y")?;
-        let (z, zv) = (
-            f32_data(s2, "SiLU gate z")?,
-            RowView::new(l2, "SiLU gate z")?,
-        );
+        let (z, zv) = (f32_data(s2, "SiLU gate z")?, RowView::new(l2, "SiLU gate z")?);
         let [batch, seq_len, di] = zv.dims;
         let mut out = vec![0f32; y.len()];
         out.par_chunks_mut(ROWS_PER_TASK * di)
             .enumerate()
-            .for_each(|(task, out)| {
-                silu_gate_rows(y, z, zv, None, task * ROWS_PER_TASK, out, &mut [])
-            });
+            .for_each(|(task, out)| silu_gate_rows(y, z, zv, None, task * ROWS_PER_TASK, out, &mut []));
         Ok((CpuStorage::F32(out), Shape::from((batch, seq_len, di))))
     }
 
@@ -622,10 +552,7 @@ impl CustomOp2 for SiluGate {
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>)> {
         let grads = y.apply_op3_no_bwd(z, &grad.contiguous()?, &SiluGateBackward)?;
         let n = y.elem_count();
-        Ok((
-            Some(grads.narrow(0, 0, n)?.reshape(y.shape())?),
-            Some(grads.narrow(0, n, n)?.reshape(y.shape())?),
-        ))
+        Ok((Some(grads.narrow(0, 0, n)?.reshape(y.shape())?), Some(grads.narrow(0, n, n)?.reshape(y.shape())?)))
     }
 }
 
@@ -647,10 +574,7 @@ impl CustomOp3 for SiluGateBackward {
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let y = contiguous_data(s1, l1, "SiLU gate y")?;
-        let (z, zv) = (
-            f32_data(s2, "SiLU gate z")?,
-            RowView::new(l2, "SiLU gate z")?,
-        );
+        let (z, zv) = (f32_data(s2, "SiLU gate z")?, RowView::new(l2, "SiLU gate z")?);
         let grad = contiguous_data(s3, l3, "SiLU gate dL/dout")?;
         let di = zv.dims[2];
         let n = y.len();
@@ -659,9 +583,7 @@ impl CustomOp3 for SiluGateBackward {
         gy.par_chunks_mut(ROWS_PER_TASK * di)
             .zip(gz.par_chunks_mut(ROWS_PER_TASK * di))
             .enumerate()
-            .for_each(|(task, (gy, gz))| {
-                silu_gate_rows(y, z, zv, Some(grad), task * ROWS_PER_TASK, gy, gz)
-            });
+            .for_each(|(task, (gy, gz))| silu_gate_rows(y, z, zv, Some(grad), task * ROWS_PER_TASK, gy, gz));
         Ok((CpuStorage::F32(out), Shape::from(2 * n)))
     }
 }
@@ -725,22 +647,14 @@ impl CustomOp3 for GatedResidual {
         s3: &CpuStorage,
         l3: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, xv) = (
-            f32_data(s1, "gated residual x")?,
-            RowView::new(l1, "gated residual x")?,
-        );
+        let (x, xv) = (f32_data(s1, "gated residual x")?, RowView::new(l1, "gated residual x")?);
         let mixed = contiguous_data(s2, l2, "gated residual mixer output")?;
-        let (gate, gv) = (
-            f32_data(s3, "gated residual gate")?,
-            RowView::new(l3, "gated residual gate")?,
-        );
+        let (gate, gv) = (f32_data(s3, "gated residual gate")?, RowView::new(l3, "gated residual gate")?);
         let [batch, seq_len, c] = xv.dims;
         let mut out = vec![0f32; batch * seq_len * c];
         out.par_chunks_mut(ROWS_PER_TASK * c)
             .enumerate()
-            .for_each(|(task, out)| {
-                gated_residual_rows(x, xv, mixed, gate, gv, task * ROWS_PER_TASK, out)
-            });
+            .for_each(|(task, out)| gated_residual_rows(x, xv, mixed, gate, gv, task * ROWS_PER_TASK, out));
         Ok((CpuStorage::F32(out), Shape::from((batch, seq_len, c))))
     }
 
@@ -752,11 +666,7 @@ impl CustomOp3 for GatedResidual {
         _out: &Tensor,
         grad: &Tensor,
     ) -> candle_core::Result<(Option<Tensor>, Option<Tensor>, Option<Tensor>)> {
-        Ok((
-            Some(grad.clone()),
-            Some(grad.mul(gate)?),
-            Some(grad.mul(mixed)?),
-        ))
+        Ok((Some(grad.clone()), Some(grad.mul(gate)?), Some(grad.mul(mixed)?)))
     }
 }
 

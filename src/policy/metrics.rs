@@ -33,29 +33,19 @@ pub struct MetricsRow {
 
 impl MetricsRow {
     fn to_csv(self) -> String {
-        format!(
-            "{},{},{},{},{},{:.3}",
-            self.step, self.loss, self.cfm, self.bce, self.lr, self.seconds
-        )
+        format!("{},{},{},{},{},{:.3}", self.step, self.loss, self.cfm, self.bce, self.lr, self.seconds)
     }
 
     fn parse(line: &str) -> std::result::Result<Self, String> {
         let fields: Vec<&str> = line.trim().split(',').collect();
         if fields.len() != 6 {
-            return Err(format!(
-                "expected 6 comma-separated fields ({METRICS_HEADER}), found {}",
-                fields.len()
-            ));
+            return Err(format!("expected 6 comma-separated fields ({METRICS_HEADER}), found {}", fields.len()));
         }
         let num = |i: usize| -> std::result::Result<f64, String> {
-            fields[i]
-                .parse::<f64>()
-                .map_err(|e| format!("field {} '{}': {e}", i + 1, fields[i]))
+            fields[i].parse::<f64>().map_err(|e| format!("field {} '{}': {e}", i + 1, fields[i]))
         };
         Ok(MetricsRow {
-            step: fields[0]
-                .parse()
-                .map_err(|e| format!("step '{}': {e}", fields[0]))?,
+            step: fields[0].parse().map_err(|e| format!("step '{}': {e}", fields[0]))?,
             loss: num(1)?,
             cfm: num(2)?,
             bce: num(3)?,
@@ -67,10 +57,8 @@ impl MetricsRow {
 
 /// Reads every row of a metrics CSV (the header is checked and skipped).
 pub fn read_metrics(path: &Path) -> Result<Vec<MetricsRow>> {
-    let file = File::open(path).map_err(|e| PolicyError::File {
-        path: path.to_path_buf(),
-        message: format!("cannot open: {e}"),
-    })?;
+    let file = File::open(path)
+        .map_err(|e| PolicyError::File { path: path.to_path_buf(), message: format!("cannot open: {e}") })?;
     let mut rows = Vec::new();
     for (i, line) in BufReader::new(file).lines().enumerate() {
         let line = line.map_err(|e| PolicyError::File {
@@ -89,10 +77,10 @@ pub fn read_metrics(path: &Path) -> Result<Vec<MetricsRow>> {
         if line.trim().is_empty() {
             continue;
         }
-        rows.push(MetricsRow::parse(&line).map_err(|m| PolicyError::File {
-            path: path.to_path_buf(),
-            message: format!("line {}: {m}", i + 1),
-        })?);
+        rows.push(
+            MetricsRow::parse(&line)
+                .map_err(|m| PolicyError::File { path: path.to_path_buf(), message: format!("line {}: {m}", i + 1) })?,
+        );
     }
     Ok(rows)
 }
@@ -118,10 +106,7 @@ impl MetricsLog {
         if !path.exists() {
             return Self::create(path);
         }
-        let kept: Vec<MetricsRow> = read_metrics(path)?
-            .into_iter()
-            .filter(|r| r.step <= resumed_step)
-            .collect();
+        let kept: Vec<MetricsRow> = read_metrics(path)?.into_iter().filter(|r| r.step <= resumed_step).collect();
         let mut text = format!("{METRICS_HEADER}\n");
         for row in kept {
             text.push_str(&row.to_csv());
@@ -132,17 +117,11 @@ impl MetricsLog {
     }
 
     fn open_append(path: &Path) -> Result<Self> {
-        let file = OpenOptions::new()
-            .append(true)
-            .open(path)
-            .map_err(|e| PolicyError::File {
-                path: path.to_path_buf(),
-                message: format!("cannot open for appending: {e}"),
-            })?;
-        Ok(Self {
+        let file = OpenOptions::new().append(true).open(path).map_err(|e| PolicyError::File {
             path: path.to_path_buf(),
-            file,
-        })
+            message: format!("cannot open for appending: {e}"),
+        })?;
+        Ok(Self { path: path.to_path_buf(), file })
     }
 
     pub fn path(&self) -> &Path {
@@ -153,10 +132,7 @@ impl MetricsLog {
     pub fn append(&mut self, row: &MetricsRow) -> Result<()> {
         writeln!(self.file, "{}", row.to_csv())
             .and_then(|_| self.file.flush())
-            .map_err(|e| PolicyError::File {
-                path: self.path.clone(),
-                message: format!("cannot append: {e}"),
-            })
+            .map_err(|e| PolicyError::File { path: self.path.clone(), message: format!("cannot append: {e}") })
     }
 }
 
@@ -166,31 +142,19 @@ impl MetricsLog {
 /// font can be loaded the plot is drawn without text rather than failing.
 pub fn plot_loss_curve(rows: &[MetricsRow], path: &Path, width: u32, height: u32) -> Result<()> {
     if rows.is_empty() {
-        return Err(PolicyError::Invalid(
-            "plot_loss_curve: no metrics rows to plot".into(),
-        ));
+        return Err(PolicyError::Invalid("plot_loss_curve: no metrics rows to plot".into()));
     }
     if width < 64 || height < 64 {
         return Err(PolicyError::Invalid(format!(
             "plot_loss_curve: {width}x{height} px is too small (at least 64x64)"
         )));
     }
-    let file_error = |m: String| PolicyError::File {
-        path: path.to_path_buf(),
-        message: m,
-    };
+    let file_error = |m: String| PolicyError::File { path: path.to_path_buf(), message: m };
     let with_text = write_atomic_with(path, |tmp| draw_loss_curve(rows, tmp, width, height, true));
     match with_text {
         Ok(()) => Ok(()),
-        Err(first) => {
-            write_atomic_with(path, |tmp| draw_loss_curve(rows, tmp, width, height, false)).map_err(
-                |second| {
-                    file_error(format!(
-                        "cannot draw the loss curve: {first}; without text: {second}"
-                    ))
-                },
-            )
-        }
+        Err(first) => write_atomic_with(path, |tmp| draw_loss_curve(rows, tmp, width, height, false))
+            .map_err(|second| file_error(format!("cannot draw the loss curve: {first}; without text: {second}"))),
     }
 }
 
@@ -210,17 +174,8 @@ fn log_label(v: f64) -> String {
     }
 }
 
-fn draw_loss_curve(
-    rows: &[MetricsRow],
-    path: &Path,
-    width: u32,
-    height: u32,
-    text: bool,
-) -> Result<()> {
-    let plot_error = |e: String| PolicyError::File {
-        path: path.to_path_buf(),
-        message: e,
-    };
+fn draw_loss_curve(rows: &[MetricsRow], path: &Path, width: u32, height: u32, text: bool) -> Result<()> {
+    let plot_error = |e: String| PolicyError::File { path: path.to_path_buf(), message: e };
     type Series = (&'static str, RGBColor, fn(&MetricsRow) -> f64);
     let series: [Series; 3] = [
         ("loss (total)", RGBColor(31, 119, 180), |r| r.loss),
@@ -228,38 +183,24 @@ fn draw_loss_curve(
         ("L_open", RGBColor(44, 160, 44), |r| r.bce),
     ];
     let positive = |v: f64| v.is_finite() && v > 0.0;
-    let values = rows
-        .iter()
-        .flat_map(|r| series.iter().map(move |(_, _, f)| f(r)))
-        .filter(|&v| positive(v));
-    let (mut y_min, mut y_max) = values.fold((f64::INFINITY, 0.0f64), |(lo, hi), v| {
-        (lo.min(v), hi.max(v))
-    });
+    let values = rows.iter().flat_map(|r| series.iter().map(move |(_, _, f)| f(r))).filter(|&v| positive(v));
+    let (mut y_min, mut y_max) = values.fold((f64::INFINITY, 0.0f64), |(lo, hi), v| (lo.min(v), hi.max(v)));
     if !y_min.is_finite() {
         (y_min, y_max) = (1e-3, 1.0);
     }
     let (y_min, y_max) = (y_min * 0.8, y_max * 1.25);
     let x_min = rows.iter().map(|r| r.step).min().unwrap_or(0);
-    let x_max = rows
-        .iter()
-        .map(|r| r.step)
-        .max()
-        .unwrap_or(1)
-        .max(x_min + 1);
+    let x_max = rows.iter().map(|r| r.step).max().unwrap_or(1).max(x_min + 1);
 
     let root = BitMapBackend::new(path, (width, height)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| plot_error(e.to_string()))?;
     let mut builder = ChartBuilder::on(&root);
     builder.margin(12);
     if text {
-        builder
-            .caption("FlowRAM training loss", ("sans-serif", 20))
-            .x_label_area_size(36)
-            .y_label_area_size(64);
+        builder.caption("FlowRAM training loss", ("sans-serif", 20)).x_label_area_size(36).y_label_area_size(64);
     }
-    let mut chart = builder
-        .build_cartesian_2d(x_min..x_max, (y_min..y_max).log_scale())
-        .map_err(|e| plot_error(e.to_string()))?;
+    let mut chart =
+        builder.build_cartesian_2d(x_min..x_max, (y_min..y_max).log_scale()).map_err(|e| plot_error(e.to_string()))?;
     let mut mesh = chart.configure_mesh();
     if text {
         mesh.x_desc("step").y_desc("loss (log)").y_label_formatter(&|v| log_label(*v));
@@ -268,18 +209,11 @@ fn draw_loss_curve(
     }
     mesh.draw().map_err(|e| plot_error(e.to_string()))?;
     for (label, color, value) in series {
-        let points: Vec<(u64, f64)> = rows
-            .iter()
-            .map(|r| (r.step, value(r)))
-            .filter(|&(_, v)| positive(v))
-            .collect();
-        let drawn = chart
-            .draw_series(LineSeries::new(points, color.stroke_width(2)))
-            .map_err(|e| plot_error(e.to_string()))?;
+        let points: Vec<(u64, f64)> = rows.iter().map(|r| (r.step, value(r))).filter(|&(_, v)| positive(v)).collect();
+        let drawn =
+            chart.draw_series(LineSeries::new(points, color.stroke_width(2))).map_err(|e| plot_error(e.to_string()))?;
         if text {
-            drawn.label(label).legend(move |(x, y)| {
-                PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2))
-            });
+            drawn.label(label).legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], color.stroke_width(2)));
         }
     }
     if text {
@@ -306,13 +240,13 @@ mod tests {
 
     #[test]
     fn log_axis_labels_are_short() {
-        let labels: Vec<String> = [1e-6, 9.99999999e-6, 1e-3, 0.1, 1.0, 100.0, 1e4, 0.05].into_iter().map(log_label).collect();
+        let labels: Vec<String> =
+            [1e-6, 9.99999999e-6, 1e-3, 0.1, 1.0, 100.0, 1e4, 0.05].into_iter().map(log_label).collect();
         assert_eq!(labels, ["1e-6", "1e-5", "0.001", "0.1", "1", "100", "1e4", "5.00e-2"]);
     }
 
     fn tmp_dir(tag: &str) -> PathBuf {
-        let p =
-            std::env::temp_dir().join(format!("policy_train_metrics_{tag}_{}", std::process::id()));
+        let p = std::env::temp_dir().join(format!("policy_train_metrics_{tag}_{}", std::process::id()));
         let _ = fs::remove_dir_all(&p);
         fs::create_dir_all(&p).unwrap();
         p
@@ -320,14 +254,7 @@ mod tests {
 
     fn row(step: u64) -> MetricsRow {
         let loss = 10.0 / step as f64;
-        MetricsRow {
-            step,
-            loss,
-            cfm: loss * 0.008,
-            bce: loss * 0.02,
-            lr: 1e-4,
-            seconds: step as f64 * 0.5,
-        }
+        MetricsRow { step, loss, cfm: loss * 0.008, bce: loss * 0.02, lr: 1e-4, seconds: step as f64 * 0.5 }
     }
 
     #[test]
@@ -350,11 +277,7 @@ mod tests {
         assert_eq!(steps, (1..=8).collect::<Vec<_>>());
         assert_eq!(rows[3], row(4));
         let text = fs::read_to_string(&path).unwrap();
-        assert_eq!(
-            text.matches(METRICS_HEADER).count(),
-            1,
-            "header once:\n{text}"
-        );
+        assert_eq!(text.matches(METRICS_HEADER).count(), 1, "header once:\n{text}");
         // A fresh create starts over; resume on a missing file creates it.
         MetricsLog::create(&path).unwrap();
         assert!(read_metrics(&path).unwrap().is_empty());
@@ -362,10 +285,7 @@ mod tests {
         MetricsLog::resume(&other, 5).unwrap();
         assert!(read_metrics(&other).unwrap().is_empty());
         fs::write(&other, "step,loss\n1,2\n").unwrap();
-        assert!(matches!(
-            read_metrics(&other),
-            Err(PolicyError::File { .. })
-        ));
+        assert!(matches!(read_metrics(&other), Err(PolicyError::File { .. })));
         fs::remove_dir_all(&dir).ok();
     }
 
@@ -387,15 +307,9 @@ mod tests {
             .filter(|p| p.len() >= 3 && (p[0] as i32 - p[1] as i32).abs() > 60)
             .count();
         assert!(colored > 100, "only {colored} coloured pixels");
-        let names: Vec<String> = fs::read_dir(&dir)
-            .unwrap()
-            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
-            .collect();
-        assert_eq!(
-            names,
-            vec!["loss.png".to_string()],
-            "no temporary files left"
-        );
+        let names: Vec<String> =
+            fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        assert_eq!(names, vec!["loss.png".to_string()], "no temporary files left");
         assert!(plot_loss_curve(&[], &path, 640, 400).is_err());
         fs::remove_dir_all(&dir).ok();
     }

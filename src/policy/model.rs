@@ -110,7 +110,11 @@ impl EncodedObservation {
         if n == 1 {
             return Ok(self.clone());
         }
-        Ok(Self { features: self.features.clone(), state: self.state.repeat(n)?, condition: self.condition.repeat((n, 1))? })
+        Ok(Self {
+            features: self.features.clone(),
+            state: self.state.repeat(n)?,
+            condition: self.condition.repeat((n, 1))?,
+        })
     }
 }
 
@@ -216,7 +220,12 @@ impl FlowRam {
     }
 
     /// Suffix tokens [B, N2 + 1, C] and the suffix condition [B, C].
-    fn suffix_tokens(&self, features: &Tensor, prefix_condition: &Tensor, inputs: &SuffixInputs) -> Result<(Tensor, Tensor)> {
+    fn suffix_tokens(
+        &self,
+        features: &Tensor,
+        prefix_condition: &Tensor,
+        inputs: &SuffixInputs,
+    ) -> Result<(Tensor, Tensor)> {
         let c = self.config.model.channels;
         let b = inputs.action.dim(0)?;
         let position = inputs.action.narrow(1, 0, 3)?;

@@ -93,7 +93,10 @@ impl Observation {
             )));
         }
         if episode.height != episode.width {
-            return Err(PolicyError::Invalid(format!("the policy needs square images; the episode has {}x{}", episode.height, episode.width)));
+            return Err(PolicyError::Invalid(format!(
+                "the policy needs square images; the episode has {}x{}",
+                episode.height, episode.width
+            )));
         }
         let (h, w, cams) = (episode.height, episode.width, episode.cameras.len());
         let mut cameras = Vec::with_capacity(cams);
@@ -136,12 +139,25 @@ pub struct SceneCloud {
 /// Lifts every feature pixel (stride `stride`) of every camera to the world, keeps those in the
 /// workspace, picks the N1 semantic tokens and the N2 global geometric tokens. Errors when no
 /// pixel lies in the workspace.
-pub fn lift_scene(observation: &Observation, stride: usize, workspace: &WorkspaceBounds, n1: usize, n2: usize) -> Result<SceneCloud> {
+pub fn lift_scene(
+    observation: &Observation,
+    stride: usize,
+    workspace: &WorkspaceBounds,
+    n1: usize,
+    n2: usize,
+) -> Result<SceneCloud> {
     let grid = observation.size / stride.max(1);
     let per_camera = grid * grid;
     let mut cloud = SceneCloud::default();
     for (c, view) in observation.cameras.iter().enumerate() {
-        let lifted = geometry::lift_depth(&view.depth, observation.size, observation.size, &view.intrinsics, &view.camera_to_world, stride)?;
+        let lifted = geometry::lift_depth(
+            &view.depth,
+            observation.size,
+            observation.size,
+            &view.intrinsics,
+            &view.camera_to_world,
+            stride,
+        )?;
         let cropped = workspace.crop_and_normalize(&lifted);
         cloud.points_norm.extend_from_slice(&cropped.points_norm);
         cloud.cells.extend(cropped.cells.iter().map(|&cell| c * per_camera + cell));

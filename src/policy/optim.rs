@@ -37,14 +37,7 @@ pub struct AdamWConfig {
 
 impl Default for AdamWConfig {
     fn default() -> Self {
-        Self {
-            learning_rate: 1e-4,
-            weight_decay: 5e-4,
-            beta1: 0.9,
-            beta2: 0.999,
-            eps: 1e-8,
-            max_grad_norm: None,
-        }
+        Self { learning_rate: 1e-4, weight_decay: 5e-4, beta1: 0.9, beta2: 0.999, eps: 1e-8, max_grad_norm: None }
     }
 }
 
@@ -52,9 +45,7 @@ impl AdamWConfig {
     /// Checks every field's range and names the wrong one.
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &str, value: f64, want: &str| {
-            Err(PolicyError::Invalid(format!(
-                "AdamW config: {field} = {value}, expected {want}"
-            )))
+            Err(PolicyError::Invalid(format!("AdamW config: {field} = {value}, expected {want}")))
         };
         if !(self.learning_rate.is_finite() && self.learning_rate >= 0.0) {
             return bad("learning_rate", self.learning_rate, "a finite value >= 0");
@@ -89,17 +80,10 @@ struct NamedVar {
 /// The VarMap's variables sorted by name (the fixed update order). Only f32
 /// variables are supported: training runs in f32.
 fn named_vars(varmap: &VarMap, what: &str) -> Result<Vec<NamedVar>> {
-    let data = varmap
-        .data()
-        .lock()
-        .map_err(|_| PolicyError::Invalid(format!("{what}: the VarMap lock is poisoned")))?;
-    let mut vars: Vec<NamedVar> = data
-        .iter()
-        .map(|(name, var)| NamedVar {
-            name: name.clone(),
-            var: var.clone(),
-        })
-        .collect();
+    let data =
+        varmap.data().lock().map_err(|_| PolicyError::Invalid(format!("{what}: the VarMap lock is poisoned")))?;
+    let mut vars: Vec<NamedVar> =
+        data.iter().map(|(name, var)| NamedVar { name: name.clone(), var: var.clone() }).collect();
     drop(data);
     vars.sort_by(|a, b| a.name.cmp(&b.name));
     for v in &vars {
@@ -124,8 +108,7 @@ fn to_f32_vec(t: &Tensor) -> Result<Vec<f32>> {
 }
 
 fn scalar_i64(value: u64, device: &Device) -> Result<Tensor> {
-    let v = i64::try_from(value)
-        .map_err(|_| PolicyError::Invalid(format!("counter {value} does not fit in i64")))?;
+    let v = i64::try_from(value).map_err(|_| PolicyError::Invalid(format!("counter {value} does not fit in i64")))?;
     Ok(Tensor::new(&[v], device)?)
 }
 
@@ -134,13 +117,12 @@ fn read_counter(tensors: &HashMap<String, Tensor>, name: &str, source: &Path) ->
         path: source.to_path_buf(),
         message: format!("missing tensor '{name}' (the step counter)"),
     })?;
-    let values = t
-        .flatten_all()
-        .and_then(|t| t.to_dtype(DType::I64))
-        .and_then(|t| t.to_vec1::<i64>())
-        .map_err(|e| PolicyError::File {
-            path: source.to_path_buf(),
-            message: format!("tensor '{name}' is not an integer counter: {e}"),
+    let values =
+        t.flatten_all().and_then(|t| t.to_dtype(DType::I64)).and_then(|t| t.to_vec1::<i64>()).map_err(|e| {
+            PolicyError::File {
+                path: source.to_path_buf(),
+                message: format!("tensor '{name}' is not an integer counter: {e}"),
+            }
         })?;
     match values.as_slice() {
         [v] if *v >= 0 => Ok(*v as u64),
@@ -152,27 +134,15 @@ fn read_counter(tensors: &HashMap<String, Tensor>, name: &str, source: &Path) ->
 }
 
 /// Fetches `name` from `tensors`, checks it has `shape`, and returns its f32 values.
-fn read_state_buffer(
-    tensors: &HashMap<String, Tensor>,
-    name: &str,
-    shape: &Shape,
-    source: &Path,
-) -> Result<Vec<f32>> {
+fn read_state_buffer(tensors: &HashMap<String, Tensor>, name: &str, shape: &Shape, source: &Path) -> Result<Vec<f32>> {
     let t = tensors.get(name).ok_or_else(|| PolicyError::File {
         path: source.to_path_buf(),
-        message: format!(
-            "missing tensor '{name}' (shape {:?}); was it saved for a different model?",
-            shape.dims()
-        ),
+        message: format!("missing tensor '{name}' (shape {:?}); was it saved for a different model?", shape.dims()),
     })?;
     if t.shape() != shape {
         return Err(PolicyError::File {
             path: source.to_path_buf(),
-            message: format!(
-                "tensor '{name}' has shape {:?}, the model expects {:?}",
-                t.dims(),
-                shape.dims()
-            ),
+            message: format!("tensor '{name}' has shape {:?}, the model expects {:?}", t.dims(), shape.dims()),
         });
     }
     if t.dtype() != DType::F32 {
@@ -207,10 +177,8 @@ fn reject_unexpected(
 }
 
 pub(crate) fn load_safetensors(path: &Path, device: &Device) -> Result<HashMap<String, Tensor>> {
-    let bytes = std::fs::read(path).map_err(|e| PolicyError::File {
-        path: path.to_path_buf(),
-        message: format!("cannot read: {e}"),
-    })?;
+    let bytes = std::fs::read(path)
+        .map_err(|e| PolicyError::File { path: path.to_path_buf(), message: format!("cannot read: {e}") })?;
     candle_core::safetensors::load_buffer(&bytes, device).map_err(|e| PolicyError::File {
         path: path.to_path_buf(),
         message: format!("not a valid safetensors file (truncated or corrupt?): {e}"),
@@ -273,19 +241,10 @@ impl AdamW {
             .into_iter()
             .map(|nv| {
                 let n = nv.var.elem_count();
-                AdamWParam {
-                    name: nv.name,
-                    var: nv.var,
-                    m: vec![0.0; n],
-                    v: vec![0.0; n],
-                }
+                AdamWParam { name: nv.name, var: nv.var, m: vec![0.0; n], v: vec![0.0; n] }
             })
             .collect();
-        Ok(Self {
-            config,
-            params,
-            step: 0,
-        })
+        Ok(Self { config, params, step: 0 })
     }
 
     pub fn config(&self) -> &AdamWConfig {
@@ -300,9 +259,7 @@ impl AdamW {
     /// Sets the learning rate for the next steps (for a schedule).
     pub fn set_learning_rate(&mut self, learning_rate: f64) -> Result<()> {
         if !(learning_rate.is_finite() && learning_rate >= 0.0) {
-            return Err(PolicyError::Invalid(format!(
-                "learning rate {learning_rate}: expected a finite value >= 0"
-            )));
+            return Err(PolicyError::Invalid(format!("learning rate {learning_rate}: expected a finite value >= 0")));
         }
         self.config.learning_rate = learning_rate;
         Ok(())
@@ -350,10 +307,7 @@ impl AdamW {
         // Per-variable sums of squares in f64 (each sequential), then summed in name order.
         let sq_sums: Vec<f64> = flat_grads
             .par_iter()
-            .map(|g| {
-                g.as_ref()
-                    .map_or(0.0, |g| g.iter().map(|&x| (x as f64) * (x as f64)).sum())
-            })
+            .map(|g| g.as_ref().map_or(0.0, |g| g.iter().map(|&x| (x as f64) * (x as f64)).sum()))
             .collect();
         let grad_norm = sq_sums.iter().sum::<f64>().sqrt();
         if !grad_norm.is_finite() {
@@ -388,11 +342,7 @@ impl AdamW {
                 let Some(grad) = grad else { return Ok(None) };
                 let mut theta = to_f32_vec(p.var.as_tensor())?;
                 for i in 0..theta.len() {
-                    let g = if clip_scale != 1.0 {
-                        grad[i] * clip
-                    } else {
-                        grad[i]
-                    };
+                    let g = if clip_scale != 1.0 { grad[i] * clip } else { grad[i] };
                     let m = b1 * p.m[i] + one_minus_b1 * g;
                     let v = b2 * p.v[i] + one_minus_b2 * g * g;
                     p.m[i] = m;
@@ -410,12 +360,7 @@ impl AdamW {
             }
         }
         self.step = step;
-        Ok(AdamWStepStats {
-            step,
-            grad_norm,
-            clip_scale,
-            vars_without_grad,
-        })
+        Ok(AdamWStepStats { step, grad_norm, clip_scale, vars_without_grad })
     }
 
     /// The optimiser state as tensors: `{prefix}m.{var}`, `{prefix}v.{var}`
@@ -425,19 +370,10 @@ impl AdamW {
         for p in &self.params {
             let shape = p.var.shape();
             let dev = p.var.device();
-            out.insert(
-                format!("{prefix}m.{}", p.name),
-                Tensor::from_slice(&p.m, shape, dev)?,
-            );
-            out.insert(
-                format!("{prefix}v.{}", p.name),
-                Tensor::from_slice(&p.v, shape, dev)?,
-            );
+            out.insert(format!("{prefix}m.{}", p.name), Tensor::from_slice(&p.m, shape, dev)?);
+            out.insert(format!("{prefix}v.{}", p.name), Tensor::from_slice(&p.v, shape, dev)?);
         }
-        let dev = self
-            .params
-            .first()
-            .map_or(Device::Cpu, |p| p.var.device().clone());
+        let dev = self.params.first().map_or(Device::Cpu, |p| p.var.device().clone());
         out.insert(format!("{prefix}step"), scalar_i64(self.step, &dev)?);
         Ok(out)
     }
@@ -446,12 +382,7 @@ impl AdamW {
     /// prefix. Every variable's moments must be present with its shape and no
     /// unknown tensor may appear; on error nothing is changed. `source` names
     /// the file in error messages.
-    pub fn load_state_tensors(
-        &mut self,
-        tensors: &HashMap<String, Tensor>,
-        prefix: &str,
-        source: &Path,
-    ) -> Result<()> {
+    pub fn load_state_tensors(&mut self, tensors: &HashMap<String, Tensor>, prefix: &str, source: &Path) -> Result<()> {
         let staged = self.stage_state(tensors, prefix, source)?;
         self.apply_state(staged);
         Ok(())
@@ -469,10 +400,7 @@ impl AdamW {
         expected.insert(format!("{prefix}step"));
         let mut moments = Vec::with_capacity(self.params.len());
         for p in &self.params {
-            let (m_name, v_name) = (
-                format!("{prefix}m.{}", p.name),
-                format!("{prefix}v.{}", p.name),
-            );
+            let (m_name, v_name) = (format!("{prefix}m.{}", p.name), format!("{prefix}v.{}", p.name));
             let m = read_state_buffer(tensors, &m_name, p.var.shape(), source)?;
             let v = read_state_buffer(tensors, &v_name, p.var.shape(), source)?;
             expected.insert(m_name);
@@ -499,10 +427,7 @@ impl AdamW {
 
     /// Loads a file written by [`AdamW::save`].
     pub fn load(&mut self, path: &Path) -> Result<()> {
-        let device = self
-            .params
-            .first()
-            .map_or(Device::Cpu, |p| p.var.device().clone());
+        let device = self.params.first().map_or(Device::Cpu, |p| p.var.device().clone());
         let tensors = load_safetensors(path, &device)?;
         self.load_state_tensors(&tensors, "adamw.", path)
     }
@@ -525,12 +450,7 @@ pub struct LearningRateSchedule {
 impl LearningRateSchedule {
     /// A constant rate.
     pub fn constant(base: f64) -> Self {
-        Self {
-            base,
-            warmup_steps: 0,
-            decay_until: None,
-            min: base,
-        }
+        Self { base, warmup_steps: 0, decay_until: None, min: base }
     }
 
     /// The rate for optimiser step `step` (1-based: the first step is 1).
@@ -540,10 +460,8 @@ impl LearningRateSchedule {
         }
         match self.decay_until {
             Some(end) if end > self.warmup_steps => {
-                let progress =
-                    ((step - self.warmup_steps) as f64 / (end - self.warmup_steps) as f64).min(1.0);
-                self.min
-                    + 0.5 * (self.base - self.min) * (1.0 + (std::f64::consts::PI * progress).cos())
+                let progress = ((step - self.warmup_steps) as f64 / (end - self.warmup_steps) as f64).min(1.0);
+                self.min + 0.5 * (self.base - self.min) * (1.0 + (std::f64::consts::PI * progress).cos())
             }
             _ => self.base,
         }
@@ -563,10 +481,7 @@ pub struct EmaConfig {
 
 impl Default for EmaConfig {
     fn default() -> Self {
-        Self {
-            decay: 0.9999,
-            warmup: true,
-        }
+        Self { decay: 0.9999, warmup: true }
     }
 }
 
@@ -601,18 +516,10 @@ impl Ema {
             .into_iter()
             .map(|nv| -> Result<EmaParam> {
                 let shadow = to_f32_vec(nv.var.as_tensor())?;
-                Ok(EmaParam {
-                    name: nv.name,
-                    var: nv.var,
-                    shadow,
-                })
+                Ok(EmaParam { name: nv.name, var: nv.var, shadow })
             })
             .collect::<Result<_>>()?;
-        Ok(Self {
-            config,
-            params,
-            updates: 0,
-        })
+        Ok(Self { config, params, updates: 0 })
     }
 
     pub fn config(&self) -> &EmaConfig {
@@ -626,11 +533,7 @@ impl Ema {
 
     /// The decay used for update number `n` (1-based).
     pub fn decay_for_update(&self, n: u64) -> f64 {
-        if self.config.warmup {
-            self.config.decay.min((1.0 + n as f64) / (10.0 + n as f64))
-        } else {
-            self.config.decay
-        }
+        if self.config.warmup { self.config.decay.min((1.0 + n as f64) / (10.0 + n as f64)) } else { self.config.decay }
     }
 
     /// Folds the model's current weights into the average (call after each
@@ -654,32 +557,21 @@ impl Ema {
     pub fn tensors(&self) -> Result<HashMap<String, Tensor>> {
         self.params
             .iter()
-            .map(|p| {
-                Ok((
-                    p.name.clone(),
-                    Tensor::from_slice(&p.shadow, p.var.shape(), p.var.device())?,
-                ))
-            })
+            .map(|p| Ok((p.name.clone(), Tensor::from_slice(&p.shadow, p.var.shape(), p.var.device())?)))
             .collect()
     }
 
     /// A VarBuilder over the averaged weights, to build the model for inference.
     pub fn var_builder(&self, device: &Device) -> Result<VarBuilder<'static>> {
-        Ok(VarBuilder::from_tensors(
-            self.tensors()?,
-            DType::F32,
-            device,
-        ))
+        Ok(VarBuilder::from_tensors(self.tensors()?, DType::F32, device))
     }
 
     /// A new VarMap holding copies of the averaged weights.
     pub fn to_varmap(&self) -> Result<VarMap> {
         let varmap = VarMap::new();
         {
-            let mut data = varmap
-                .data()
-                .lock()
-                .map_err(|_| PolicyError::Invalid("EMA: VarMap lock poisoned".into()))?;
+            let mut data =
+                varmap.data().lock().map_err(|_| PolicyError::Invalid("EMA: VarMap lock poisoned".into()))?;
             for (name, t) in self.tensors()? {
                 data.insert(name, Var::from_tensor(&t)?);
             }
@@ -690,17 +582,11 @@ impl Ema {
     /// Overwrites the variables of `varmap` (same names and shapes) with the
     /// averaged weights, e.g. to evaluate the EMA model in place.
     pub fn copy_to(&self, varmap: &VarMap) -> Result<()> {
-        let data = varmap
-            .data()
-            .lock()
-            .map_err(|_| PolicyError::Invalid("EMA: VarMap lock poisoned".into()))?;
+        let data = varmap.data().lock().map_err(|_| PolicyError::Invalid("EMA: VarMap lock poisoned".into()))?;
         for p in &self.params {
-            let var = data.get(&p.name).ok_or_else(|| {
-                PolicyError::Invalid(format!(
-                    "EMA copy_to: the target VarMap has no '{}'",
-                    p.name
-                ))
-            })?;
+            let var = data
+                .get(&p.name)
+                .ok_or_else(|| PolicyError::Invalid(format!("EMA copy_to: the target VarMap has no '{}'", p.name)))?;
             if var.shape() != p.var.shape() {
                 return Err(PolicyError::Invalid(format!(
                     "EMA copy_to: '{}' has shape {:?} in the target, {:?} in the average",
@@ -709,9 +595,7 @@ impl Ema {
                     p.var.dims()
                 )));
             }
-            var.set(
-                &Tensor::from_slice(&p.shadow, var.shape(), var.device())?.to_dtype(var.dtype())?,
-            )?;
+            var.set(&Tensor::from_slice(&p.shadow, var.shape(), var.device())?.to_dtype(var.dtype())?)?;
         }
         Ok(())
     }
@@ -719,34 +603,20 @@ impl Ema {
     /// The averaged weights plus [`EMA_UPDATES_TENSOR`].
     pub fn state_tensors(&self) -> Result<HashMap<String, Tensor>> {
         let mut out = self.tensors()?;
-        let dev = self
-            .params
-            .first()
-            .map_or(Device::Cpu, |p| p.var.device().clone());
-        out.insert(
-            EMA_UPDATES_TENSOR.to_string(),
-            scalar_i64(self.updates, &dev)?,
-        );
+        let dev = self.params.first().map_or(Device::Cpu, |p| p.var.device().clone());
+        out.insert(EMA_UPDATES_TENSOR.to_string(), scalar_i64(self.updates, &dev)?);
         Ok(out)
     }
 
     /// Restores [`Ema::state_tensors`]; on error nothing is changed.
-    pub fn load_state_tensors(
-        &mut self,
-        tensors: &HashMap<String, Tensor>,
-        source: &Path,
-    ) -> Result<()> {
+    pub fn load_state_tensors(&mut self, tensors: &HashMap<String, Tensor>, source: &Path) -> Result<()> {
         let staged = self.stage_state(tensors, source)?;
         self.apply_state(staged);
         Ok(())
     }
 
     /// Validates a saved state without changing anything (first half of a load).
-    pub(crate) fn stage_state(
-        &self,
-        tensors: &HashMap<String, Tensor>,
-        source: &Path,
-    ) -> Result<StagedEmaState> {
+    pub(crate) fn stage_state(&self, tensors: &HashMap<String, Tensor>, source: &Path) -> Result<StagedEmaState> {
         let updates = read_counter(tensors, EMA_UPDATES_TENSOR, source)?;
         let mut expected = std::collections::HashSet::new();
         expected.insert(EMA_UPDATES_TENSOR.to_string());
@@ -774,10 +644,7 @@ impl Ema {
 
     /// Loads a file written by [`Ema::save`].
     pub fn load(&mut self, path: &Path) -> Result<()> {
-        let device = self
-            .params
-            .first()
-            .map_or(Device::Cpu, |p| p.var.device().clone());
+        let device = self.params.first().map_or(Device::Cpu, |p| p.var.device().clone());
         let tensors = load_safetensors(path, &device)?;
         self.load_state_tensors(&tensors, path)
     }
@@ -797,33 +664,17 @@ mod tests {
         let data = varmap.data().lock().unwrap();
         let (w, b) = (data["w"].clone(), data["b"].clone());
         drop(data);
-        w.set(&Tensor::new(&[1.0f32, -2.0], &Device::Cpu).unwrap())
-            .unwrap();
-        b.set(&Tensor::new(&[0.5f32], &Device::Cpu).unwrap())
-            .unwrap();
+        w.set(&Tensor::new(&[1.0f32, -2.0], &Device::Cpu).unwrap()).unwrap();
+        b.set(&Tensor::new(&[0.5f32], &Device::Cpu).unwrap()).unwrap();
         (varmap, w, b)
     }
 
     /// Loss (w . x + b - y)^2 for a fixed sample indexed by `k`.
     fn loss(w: &Var, b: &Var, k: usize) -> Tensor {
         let x = Tensor::new(&[[1.0f32 + k as f32], [0.5]], &Device::Cpu).unwrap();
-        let pred = w
-            .as_tensor()
-            .unsqueeze(0)
-            .unwrap()
-            .matmul(&x)
-            .unwrap()
-            .squeeze(0)
-            .unwrap();
+        let pred = w.as_tensor().unsqueeze(0).unwrap().matmul(&x).unwrap().squeeze(0).unwrap();
         let y = 3.0 - 0.1 * k as f64;
-        (pred + b.as_tensor())
-            .unwrap()
-            .affine(1.0, -y)
-            .unwrap()
-            .sqr()
-            .unwrap()
-            .sum_all()
-            .unwrap()
+        (pred + b.as_tensor()).unwrap().affine(1.0, -y).unwrap().sqr().unwrap().sum_all().unwrap()
     }
 
     fn values(v: &Var) -> Vec<f32> {
@@ -833,11 +684,7 @@ mod tests {
     #[test]
     fn adamw_matches_hand_computation() {
         let (varmap, w, b) = tiny_model();
-        let cfg = AdamWConfig {
-            learning_rate: 0.1,
-            weight_decay: 0.01,
-            ..Default::default()
-        };
+        let cfg = AdamWConfig { learning_rate: 0.1, weight_decay: 0.01, ..Default::default() };
         let mut opt = AdamW::new(&varmap, cfg.clone()).unwrap();
         // Reference in f64, same maths.
         let mut theta = [1.0f64, -2.0, 0.5];
@@ -860,10 +707,7 @@ mod tests {
             assert_eq!(stats.step, k as u64 + 1);
             let got = [values(&w)[0], values(&w)[1], values(&b)[0]];
             for i in 0..3 {
-                assert!(
-                    (got[i] as f64 - theta[i]).abs() < 1e-5,
-                    "step {k} param {i}: {got:?} vs {theta:?}"
-                );
+                assert!((got[i] as f64 - theta[i]).abs() < 1e-5, "step {k} param {i}: {got:?} vs {theta:?}");
             }
         }
     }
@@ -871,23 +715,13 @@ mod tests {
     #[test]
     fn gradient_clipping_scales_to_max_norm() {
         let (varmap, w, b) = tiny_model();
-        let cfg = AdamWConfig {
-            max_grad_norm: Some(0.5),
-            ..Default::default()
-        };
+        let cfg = AdamWConfig { max_grad_norm: Some(0.5), ..Default::default() };
         let mut opt = AdamW::new(&varmap, cfg).unwrap();
         let grads = loss(&w, &b, 0).backward().unwrap();
         let stats = opt.step(&grads).unwrap();
         assert!(stats.grad_norm > 0.5);
         assert!((stats.grad_norm * stats.clip_scale - 0.5).abs() < 1e-5);
-        assert!(AdamW::new(
-            &varmap,
-            AdamWConfig {
-                max_grad_norm: Some(-1.0),
-                ..Default::default()
-            }
-        )
-        .is_err());
+        assert!(AdamW::new(&varmap, AdamWConfig { max_grad_norm: Some(-1.0), ..Default::default() }).is_err());
     }
 
     #[test]
@@ -895,10 +729,7 @@ mod tests {
         let dir = std::env::temp_dir().join(format!("policy_train_adamw_{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("opt.safetensors");
-        let cfg = AdamWConfig {
-            learning_rate: 0.05,
-            ..Default::default()
-        };
+        let cfg = AdamWConfig { learning_rate: 0.05, ..Default::default() };
 
         // Uninterrupted: 4 steps.
         let (vm_a, wa, ba) = tiny_model();
@@ -915,10 +746,8 @@ mod tests {
         opt_b.save(&path).unwrap();
         let (saved_w, saved_b) = (values(&wb), values(&bb));
         let (vm_c, wc, bc) = tiny_model();
-        wc.set(&Tensor::new(saved_w.as_slice(), &Device::Cpu).unwrap())
-            .unwrap();
-        bc.set(&Tensor::new(saved_b.as_slice(), &Device::Cpu).unwrap())
-            .unwrap();
+        wc.set(&Tensor::new(saved_w.as_slice(), &Device::Cpu).unwrap()).unwrap();
+        bc.set(&Tensor::new(saved_b.as_slice(), &Device::Cpu).unwrap()).unwrap();
         let mut opt_c = AdamW::new(&vm_c, cfg).unwrap();
         opt_c.load(&path).unwrap();
         assert_eq!(opt_c.step_count(), 3);
@@ -934,74 +763,36 @@ mod tests {
         let mut opt = AdamW::new(&varmap, AdamWConfig::default()).unwrap();
         let mut state = opt.state_tensors("adamw.").unwrap();
         state.remove("adamw.v.w");
-        let err = opt
-            .load_state_tensors(&state, "adamw.", Path::new("opt.safetensors"))
-            .unwrap_err();
+        let err = opt.load_state_tensors(&state, "adamw.", Path::new("opt.safetensors")).unwrap_err();
         let msg = err.to_string();
-        assert!(
-            msg.contains("opt.safetensors") && msg.contains("adamw.v.w"),
-            "{msg}"
-        );
+        assert!(msg.contains("opt.safetensors") && msg.contains("adamw.v.w"), "{msg}");
     }
 
     #[test]
     fn ema_follows_the_formula_and_round_trips() {
         let (varmap, w, _b) = tiny_model();
-        let mut ema = Ema::new(
-            &varmap,
-            EmaConfig {
-                decay: 0.5,
-                warmup: false,
-            },
-        )
-        .unwrap();
-        w.set(&Tensor::new(&[3.0f32, 2.0], &Device::Cpu).unwrap())
-            .unwrap();
+        let mut ema = Ema::new(&varmap, EmaConfig { decay: 0.5, warmup: false }).unwrap();
+        w.set(&Tensor::new(&[3.0f32, 2.0], &Device::Cpu).unwrap()).unwrap();
         ema.update().unwrap();
         // 0.5 * [1, -2] + 0.5 * [3, 2] = [2, 0]
-        assert_eq!(
-            ema.tensors().unwrap()["w"].to_vec1::<f32>().unwrap(),
-            vec![2.0, 0.0]
-        );
+        assert_eq!(ema.tensors().unwrap()["w"].to_vec1::<f32>().unwrap(), vec![2.0, 0.0]);
         ema.update().unwrap();
-        assert_eq!(
-            ema.tensors().unwrap()["w"].to_vec1::<f32>().unwrap(),
-            vec![2.5, 1.0]
-        );
+        assert_eq!(ema.tensors().unwrap()["w"].to_vec1::<f32>().unwrap(), vec![2.5, 1.0]);
 
         // The EMA VarMap / VarBuilder serve the averaged weights.
         let vb = ema.var_builder(&Device::Cpu).unwrap();
-        assert_eq!(
-            vb.get(2, "w").unwrap().to_vec1::<f32>().unwrap(),
-            vec![2.5, 1.0]
-        );
+        assert_eq!(vb.get(2, "w").unwrap().to_vec1::<f32>().unwrap(), vec![2.5, 1.0]);
         let vm = ema.to_varmap().unwrap();
-        assert_eq!(
-            vm.data().lock().unwrap()["w"]
-                .as_tensor()
-                .to_vec1::<f32>()
-                .unwrap(),
-            vec![2.5, 1.0]
-        );
+        assert_eq!(vm.data().lock().unwrap()["w"].as_tensor().to_vec1::<f32>().unwrap(), vec![2.5, 1.0]);
 
         let dir = std::env::temp_dir().join(format!("policy_train_ema_{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("ema.safetensors");
         ema.save(&path).unwrap();
-        let mut other = Ema::new(
-            &varmap,
-            EmaConfig {
-                decay: 0.5,
-                warmup: false,
-            },
-        )
-        .unwrap();
+        let mut other = Ema::new(&varmap, EmaConfig { decay: 0.5, warmup: false }).unwrap();
         other.load(&path).unwrap();
         assert_eq!(other.updates(), 2);
-        assert_eq!(
-            other.tensors().unwrap()["w"].to_vec1::<f32>().unwrap(),
-            vec![2.5, 1.0]
-        );
+        assert_eq!(other.tensors().unwrap()["w"].to_vec1::<f32>().unwrap(), vec![2.5, 1.0]);
         other.copy_to(&varmap).unwrap();
         assert_eq!(values(&w), vec![2.5, 1.0]);
         std::fs::remove_dir_all(&dir).ok();
@@ -1013,25 +804,13 @@ mod tests {
         let ema = Ema::new(&varmap, EmaConfig::default()).unwrap();
         assert!((ema.decay_for_update(1) - 2.0 / 11.0).abs() < 1e-12);
         assert_eq!(ema.decay_for_update(10_000_000), 0.9999);
-        let plain = Ema::new(
-            &varmap,
-            EmaConfig {
-                warmup: false,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        let plain = Ema::new(&varmap, EmaConfig { warmup: false, ..Default::default() }).unwrap();
         assert_eq!(plain.decay_for_update(1), 0.9999);
     }
 
     #[test]
     fn schedule_warms_up_then_decays() {
-        let s = LearningRateSchedule {
-            base: 1e-4,
-            warmup_steps: 10,
-            decay_until: Some(110),
-            min: 1e-5,
-        };
+        let s = LearningRateSchedule { base: 1e-4, warmup_steps: 10, decay_until: Some(110), min: 1e-5 };
         assert!((s.at(5) - 5e-5).abs() < 1e-15);
         assert!((s.at(10) - 1e-4).abs() < 1e-15);
         assert!((s.at(60) - 5.5e-5).abs() < 1e-12);

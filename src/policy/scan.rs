@@ -32,8 +32,8 @@
 //! groups afterwards.
 
 use crate::policy::cpu_kernels::{
-    contiguous_data, exp_interleaved, lane_sum, load_lanes, madd, sigmoid, silu, simd_kernel,
-    softplus_interleaved, with_captured, DisjointWriter, Lanes, LANES,
+    DisjointWriter, LANES, Lanes, contiguous_data, exp_interleaved, lane_sum, load_lanes, madd, sigmoid, silu,
+    simd_kernel, softplus_interleaved, with_captured,
 };
 use crate::policy::error::{PolicyError, Result};
 use candle_core::{CpuStorage, CustomOp3, DType, Device, Layout, Shape, Tensor};
@@ -101,17 +101,9 @@ impl ScanInputs<'_> {
             ))
         })?;
         let (d_inner_a, d_state) = self.a.dims2().map_err(|_| {
-            PolicyError::Invalid(format!(
-                "selective scan: A must be [d_inner, d_state], got {:?}",
-                self.a.shape()
-            ))
+            PolicyError::Invalid(format!("selective scan: A must be [d_inner, d_state], got {:?}", self.a.shape()))
         })?;
-        let dims = ScanDims {
-            batch,
-            seq_len,
-            d_inner,
-            d_state,
-        };
+        let dims = ScanDims { batch, seq_len, d_inner, d_state };
         let expect = |name: &str, t: &Tensor, shape: &[usize]| -> Result<()> {
             if t.dims() != shape {
                 return Err(PolicyError::Invalid(format!(
@@ -167,11 +159,7 @@ impl ScanInputs<'_> {
 pub fn selective_scan(inputs: &ScanInputs) -> Result<Tensor> {
     let dims = inputs.dims()?;
     let (u, delta_raw, packed) = inputs.operands()?;
-    let op = SelectiveScan {
-        dims,
-        initial_state: None,
-        gate: None,
-    };
+    let op = SelectiveScan { dims, initial_state: None, gate: None };
     Ok(u.apply_op3(&delta_raw, &packed, op)?)
 }
 
@@ -180,10 +168,7 @@ pub fn selective_scan(inputs: &ScanInputs) -> Result<Tensor> {
 /// zeros. Returns (y [B, L, Di], final state [B, Di, N]). Scanning a prefix,
 /// then the suffix from the prefix's final state, gives the same y as scanning
 /// the concatenation.
-pub fn selective_scan_with_state(
-    inputs: &ScanInputs,
-    initial_state: Option<&Tensor>,
-) -> Result<(Tensor, Tensor)> {
+pub fn selective_scan_with_state(inputs: &ScanInputs, initial_state: Option<&Tensor>) -> Result<(Tensor, Tensor)> {
     scan_with_state(inputs, initial_state, None)
 }
 
@@ -213,7 +198,7 @@ fn scan_with_state(
                 inputs.u.shape(),
                 z.dtype(),
                 z.shape()
-            )))
+            )));
         }
         None => None,
     };
@@ -229,25 +214,14 @@ fn scan_with_state(
             }
             Some(h0.contiguous()?)
         }
-        None => Some(Tensor::zeros(
-            (dims.batch, dims.d_inner, dims.d_state),
-            DType::F32,
-            &Device::Cpu,
-        )?),
+        None => Some(Tensor::zeros((dims.batch, dims.d_inner, dims.d_state), DType::F32, &Device::Cpu)?),
     };
     let (u, delta_raw, packed) = inputs.operands()?;
-    let op = SelectiveScan {
-        dims,
-        initial_state,
-        gate,
-    };
+    let op = SelectiveScan { dims, initial_state, gate };
     let out = u.apply_op3_no_bwd(&delta_raw, &packed, &op)?;
-    let y =
-        out.narrow(0, 0, dims.seq_elems())?
-            .reshape((dims.batch, dims.seq_len, dims.d_inner))?;
-    let h_last = out
-        .narrow(0, dims.seq_elems(), dims.state_elems())?
-        .reshape((dims.batch, dims.d_inner, dims.d_state))?;
+    let y = out.narrow(0, 0, dims.seq_elems())?.reshape((dims.batch, dims.seq_len, dims.d_inner))?;
+    let h_last =
+        out.narrow(0, dims.seq_elems(), dims.state_elems())?.reshape((dims.batch, dims.d_inner, dims.d_state))?;
     Ok((y, h_last))
 }
 
@@ -286,10 +260,7 @@ impl<'a> ScanData<'a> {
         let u = contiguous_data(s1, l1, "selective scan u")?;
         let delta_raw = contiguous_data(s2, l2, "selective scan delta_raw")?;
         let packed = contiguous_data(s3, l3, "selective scan packed B/C/A/D/bias")?;
-        if u.len() != dims.seq_elems()
-            || delta_raw.len() != dims.seq_elems()
-            || packed.len() != dims.packed_len()
-        {
+        if u.len() != dims.seq_elems() || delta_raw.len() != dims.seq_elems() || packed.len() != dims.packed_len() {
             candle_core::bail!(
                 "selective scan: operand sizes {} {} {} do not match {dims:?}",
                 u.len(),
@@ -301,16 +272,7 @@ impl<'a> ScanData<'a> {
         let (c, rest) = rest.split_at(dims.bc_elems());
         let (a, rest) = rest.split_at(dims.d_inner * dims.d_state);
         let (d, delta_bias) = rest.split_at(dims.d_inner);
-        Ok(Self {
-            dims,
-            u,
-            delta_raw,
-            b,
-            c,
-            a,
-            d,
-            delta_bias,
-        })
+        Ok(Self { dims, u, delta_raw, b, c, a, d, delta_bias })
     }
 }
 
@@ -330,20 +292,16 @@ impl CustomOp3 for SelectiveScan {
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let dims = self.dims;
         let data = ScanData::new(dims, s1, l1, s2, l2, s3, l3)?;
-        let tasks: Vec<(usize, usize)> = (0..dims.batch)
-            .flat_map(|b| (0..dims.groups()).map(move |g| (b, g)))
-            .collect();
+        let tasks: Vec<(usize, usize)> =
+            (0..dims.batch).flat_map(|b| (0..dims.groups()).map(move |g| (b, g))).collect();
         match &self.initial_state {
             None => {
                 let mut y = vec![0f32; dims.seq_elems()];
                 let y_out = DisjointWriter::new(&mut y);
-                tasks.par_iter().for_each(|&(b, g)| {
-                    scan_group_forward(&data, b, g, None, None, Some(y_out), None, None)
-                });
-                Ok((
-                    CpuStorage::F32(y),
-                    Shape::from((dims.batch, dims.seq_len, dims.d_inner)),
-                ))
+                tasks
+                    .par_iter()
+                    .for_each(|&(b, g)| scan_group_forward(&data, b, g, None, None, Some(y_out), None, None));
+                Ok((CpuStorage::F32(y), Shape::from((dims.batch, dims.seq_len, dims.d_inner))))
             }
             Some(h0) => with_captured(h0, "selective scan initial state", |h0| {
                 let run = |gate: Option<&[f32]>| {
@@ -351,16 +309,7 @@ impl CustomOp3 for SelectiveScan {
                     let (y, h_last) = out.split_at_mut(dims.seq_elems());
                     let (y_out, h_out) = (DisjointWriter::new(y), DisjointWriter::new(h_last));
                     tasks.par_iter().for_each(|&(b, g)| {
-                        scan_group_forward(
-                            &data,
-                            b,
-                            g,
-                            Some(h0),
-                            gate,
-                            Some(y_out),
-                            Some(h_out),
-                            None,
-                        )
+                        scan_group_forward(&data, b, g, Some(h0), gate, Some(y_out), Some(h_out), None)
                     });
                     let n = out.len();
                     Ok((CpuStorage::F32(out), Shape::from(n)))
@@ -385,10 +334,7 @@ impl CustomOp3 for SelectiveScan {
             candle_core::bail!("selective scan: no backward through a stateful or gated scan")
         }
         let dims = self.dims;
-        let op = SelectiveScanBackward {
-            dims,
-            grad_y: grad_y.contiguous()?,
-        };
+        let op = SelectiveScanBackward { dims, grad_y: grad_y.contiguous()? };
         let grads = u.apply_op3_no_bwd(delta_raw, packed, &op)?;
         let n = dims.seq_elems();
         let grad_u = grads.narrow(0, 0, n)?.reshape(u.shape())?;
@@ -427,11 +373,7 @@ impl ScanTrace {
     }
 
     fn empty() -> Self {
-        Self {
-            h: Vec::new(),
-            decay: Vec::new(),
-            delta: Vec::new(),
-        }
+        Self { h: Vec::new(), decay: Vec::new(), delta: Vec::new() }
     }
 }
 
@@ -476,16 +418,12 @@ fn bc_block<const SB: usize>(v: &[f32], row: usize, n0: usize, n_state: usize) -
 /// SB consecutive lane groups of `v` from `n0` as a fixed-size array.
 #[inline(always)]
 fn block<const SB: usize>(v: &[Lanes], n0: usize) -> &[Lanes; SB] {
-    v[n0..n0 + SB]
-        .try_into()
-        .expect("state block inside the padded state")
+    v[n0..n0 + SB].try_into().expect("state block inside the padded state")
 }
 
 #[inline(always)]
 fn block_mut<const SB: usize>(v: &mut [Lanes], n0: usize) -> &mut [Lanes; SB] {
-    (&mut v[n0..n0 + SB])
-        .try_into()
-        .expect("state block inside the padded state")
+    (&mut v[n0..n0 + SB]).try_into().expect("state block inside the padded state")
 }
 
 simd_kernel! {
@@ -585,10 +523,7 @@ fn scan_forward_body<const FMA: bool, const TRACE: bool>(
                 let (mut no_h, mut no_decay) = ([ZERO; SB], [ZERO; SB]);
                 let (trace_h, trace_decay) = if TRACE {
                     let row = t * n_pad + n0;
-                    (
-                        block_mut::<SB>(&mut trace.h, row),
-                        block_mut::<SB>(&mut trace.decay, row),
-                    )
+                    (block_mut::<SB>(&mut trace.h, row), block_mut::<SB>(&mut trace.decay, row))
                 } else {
                     (&mut no_h, &mut no_decay)
                 };
@@ -678,19 +613,15 @@ impl CustomOp3 for SelectiveScanBackward {
         let data = ScanData::new(dims, s1, l1, s2, l2, s3, l3)?;
         with_captured(&self.grad_y, "selective scan dL/dy", |grad_y| {
             if grad_y.len() != dims.seq_elems() {
-                candle_core::bail!(
-                    "selective scan backward: dL/dy has {} elements",
-                    grad_y.len()
-                )
+                candle_core::bail!("selective scan backward: dL/dy has {} elements", grad_y.len())
             }
             let n_seq = dims.seq_elems();
             let mut out = vec![0f32; 2 * n_seq + dims.packed_len()];
             let (grad_u, rest) = out.split_at_mut(n_seq);
             let (grad_raw, grad_packed) = rest.split_at_mut(n_seq);
             let (gu_out, graw_out) = (DisjointWriter::new(grad_u), DisjointWriter::new(grad_raw));
-            let tasks: Vec<(usize, usize)> = (0..dims.batch)
-                .flat_map(|b| (0..dims.groups()).map(move |g| (b, g)))
-                .collect();
+            let tasks: Vec<(usize, usize)> =
+                (0..dims.batch).flat_map(|b| (0..dims.groups()).map(move |g| (b, g))).collect();
             let parts: Vec<GroupGradients> = tasks
                 .par_iter()
                 .map(|&(b, g)| {
@@ -716,20 +647,16 @@ fn reduce_group_gradients(dims: ScanDims, parts: &[GroupGradients], grad_packed:
     let (grad_c, rest) = rest.split_at_mut(dims.bc_elems());
     let (grad_a, rest) = rest.split_at_mut(dims.d_inner * dims.d_state);
     let (grad_d, grad_bias) = rest.split_at_mut(dims.d_inner);
-    grad_b
-        .par_chunks_mut(per_batch)
-        .zip(grad_c.par_chunks_mut(per_batch))
-        .enumerate()
-        .for_each(|(b, (gb, gc))| {
-            for part in parts.iter().filter(|p| p.b == b) {
-                for (acc, v) in gb.iter_mut().zip(&part.grad_b) {
-                    *acc += v;
-                }
-                for (acc, v) in gc.iter_mut().zip(&part.grad_c) {
-                    *acc += v;
-                }
+    grad_b.par_chunks_mut(per_batch).zip(grad_c.par_chunks_mut(per_batch)).enumerate().for_each(|(b, (gb, gc))| {
+        for part in parts.iter().filter(|p| p.b == b) {
+            for (acc, v) in gb.iter_mut().zip(&part.grad_b) {
+                *acc += v;
             }
-        });
+            for (acc, v) in gc.iter_mut().zip(&part.grad_c) {
+                *acc += v;
+            }
+        }
+    });
     for part in parts {
         let (d0, width) = group_span(dims, part.group);
         for k in 0..width {

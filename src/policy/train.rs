@@ -45,7 +45,8 @@ impl TrainingData {
     pub fn load(dirs: &[PathBuf]) -> Result<Self> {
         let mut episodes = Vec::new();
         for dir in dirs {
-            let loaded = crate::data::load_dataset(dir).map_err(|e| PolicyError::File { path: dir.clone(), message: e.to_string() })?;
+            let loaded = crate::data::load_dataset(dir)
+                .map_err(|e| PolicyError::File { path: dir.clone(), message: e.to_string() })?;
             for (path, e) in &loaded.failures {
                 eprintln!("warning: skipping {}: {e}", path.display());
             }
@@ -57,7 +58,9 @@ impl TrainingData {
     pub fn from_episodes(episodes: Vec<Episode>) -> Result<Self> {
         let episodes: Vec<Episode> = episodes.into_iter().filter(|e| e.success && e.keyframes() > 0).collect();
         if episodes.is_empty() {
-            return Err(PolicyError::Invalid("no successful episode with keyframes to train on: collect some with `flowram collect`".into()));
+            return Err(PolicyError::Invalid(
+                "no successful episode with keyframes to train on: collect some with `flowram collect`".into(),
+            ));
         }
         let cameras = &episodes[0].cameras;
         let mut groups: BTreeMap<String, BTreeMap<usize, Vec<usize>>> = BTreeMap::new();
@@ -93,7 +96,12 @@ impl TrainingData {
         SampleRef { episode, k: rng.random_range(0..self.episodes[episode].keyframes()) }
     }
 
-    fn prepared(&mut self, s: SampleRef, config: &PolicyConfig, text: &mut TextEncoder) -> Result<Arc<PreparedObservation>> {
+    fn prepared(
+        &mut self,
+        s: SampleRef,
+        config: &PolicyConfig,
+        text: &mut TextEncoder,
+    ) -> Result<Arc<PreparedObservation>> {
         if let Some(p) = &self.prepared[s.episode][s.k] {
             return Ok(p.clone());
         }
@@ -181,13 +189,15 @@ impl Trainer {
             opens.push(if action.gripper_open { 1.0f32 } else { 0.0 });
             samples.push((prepared, Augmentation { shift, brightness }));
         }
-        let a1 = Tensor::from_vec(targets.iter().flatten().copied().collect::<Vec<f32>>(), (b, ACTION_DIMS), &device())?;
+        let a1 =
+            Tensor::from_vec(targets.iter().flatten().copied().collect::<Vec<f32>>(), (b, ACTION_DIMS), &device())?;
         let a0 = sample_source_noise(&mut noise_rng, b, ACTION_DIMS, &device())?;
         let t: Vec<f32> = (0..b).map(|_| noise_rng.random_range(0.0f32..1.0)).collect();
         let t_tensor = Tensor::from_vec(t.clone(), (b, 1), &device())?;
         let a_t = (a0.broadcast_mul(&t_tensor.affine(-1.0, 1.0)?)? + a1.broadcast_mul(&t_tensor)?)?;
         let target = (&a1 - &a0)?;
-        let a_t_rows: Vec<[f32; 9]> = a_t.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
+        let a_t_rows: Vec<[f32; 9]> =
+            a_t.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
         let refs: Vec<(&PreparedObservation, Augmentation)> = samples.iter().map(|(p, a)| (p.as_ref(), *a)).collect();
         let prefix = prefix_inputs(config, &refs)?;
         let own: Vec<usize> = (0..b).collect();
@@ -199,7 +209,11 @@ impl Trainer {
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;
         self.step = step;
-        Ok(StepLoss { total: total.to_scalar::<f32>()? as f64, cfm: cfm.to_scalar::<f32>()? as f64, bce: bce.to_scalar::<f32>()? as f64 })
+        Ok(StepLoss {
+            total: total.to_scalar::<f32>()? as f64,
+            cfm: cfm.to_scalar::<f32>()? as f64,
+            bce: bce.to_scalar::<f32>()? as f64,
+        })
     }
 
     fn trainer_state(&self, last_loss: Option<f64>) -> TrainerState {
@@ -215,7 +229,8 @@ impl Trainer {
     /// Saves a checkpoint into `run/checkpoints`.
     pub fn save(&self, run: &Path, last_loss: Option<f64>) -> Result<PathBuf> {
         let store = CheckpointStore::open(run.join("checkpoints"))?;
-        let config = serde_json::to_value(&self.config).map_err(|e| PolicyError::Invalid(format!("cannot serialise the config: {e}")))?;
+        let config = serde_json::to_value(&self.config)
+            .map_err(|e| PolicyError::Invalid(format!("cannot serialise the config: {e}")))?;
         store.save(&config, &self.varmap, &self.ema, &self.optimizer, &self.trainer_state(last_loss))
     }
 
@@ -238,8 +253,10 @@ impl Trainer {
 /// The config stored in a checkpoint directory.
 pub fn read_checkpoint_config(dir: &Path) -> Result<PolicyConfig> {
     let path = dir.join("config.json");
-    let text = std::fs::read_to_string(&path).map_err(|e| PolicyError::File { path: path.clone(), message: format!("cannot read: {e}") })?;
-    let config: PolicyConfig = serde_json::from_str(&text).map_err(|e| PolicyError::File { path: path.clone(), message: format!("not a policy config: {e}") })?;
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| PolicyError::File { path: path.clone(), message: format!("cannot read: {e}") })?;
+    let config: PolicyConfig = serde_json::from_str(&text)
+        .map_err(|e| PolicyError::File { path: path.clone(), message: format!("not a policy config: {e}") })?;
     config.validate().map_err(|e| PolicyError::File { path, message: e.to_string() })?;
     Ok(config)
 }
@@ -260,7 +277,8 @@ pub fn train(
     steps_override: Option<usize>,
     progress: &mut dyn TrainProgress,
 ) -> Result<Trainer> {
-    std::fs::create_dir_all(run).map_err(|e| PolicyError::File { path: run.into(), message: format!("cannot create the run folder: {e}") })?;
+    std::fs::create_dir_all(run)
+        .map_err(|e| PolicyError::File { path: run.into(), message: format!("cannot create the run folder: {e}") })?;
     let mut trainer = if resume {
         Trainer::resume(run)?
     } else {
@@ -268,7 +286,8 @@ pub fn train(
         if CheckpointStore::open(run.join("checkpoints"))?.latest()?.is_some() {
             return Err(PolicyError::File {
                 path: run.into(),
-                message: "this run already has checkpoints: pass --resume to continue it, or choose another --out".into(),
+                message: "this run already has checkpoints: pass --resume to continue it, or choose another --out"
+                    .into(),
             });
         }
         Trainer::new(config)?
@@ -277,9 +296,11 @@ pub fn train(
         trainer.config.train.steps = steps;
     }
     let metrics_path = run.join("metrics.csv");
-    let mut log = if resume { MetricsLog::resume(&metrics_path, trainer.step)? } else { MetricsLog::create(&metrics_path)? };
+    let mut log =
+        if resume { MetricsLog::resume(&metrics_path, trainer.step)? } else { MetricsLog::create(&metrics_path)? };
     let total = trainer.config.train.steps as u64;
-    let (log_every, checkpoint_every) = (trainer.config.train.log_every as u64, trainer.config.train.checkpoint_every as u64);
+    let (log_every, checkpoint_every) =
+        (trainer.config.train.log_every as u64, trainer.config.train.checkpoint_every as u64);
     while trainer.step < total {
         let started = std::time::Instant::now();
         let loss = trainer.train_step(data, text)?;

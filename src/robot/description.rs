@@ -15,12 +15,20 @@ pub struct BodyInertia {
 }
 
 impl BodyInertia {
-    pub const ZERO: BodyInertia = BodyInertia { mass: 0.0, com: Vector3::new(0.0, 0.0, 0.0), inertia: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0) };
+    pub const ZERO: BodyInertia = BodyInertia {
+        mass: 0.0,
+        com: Vector3::new(0.0, 0.0, 0.0),
+        inertia: Matrix3::new(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0),
+    };
 
     /// The same body expressed in a parent frame where the body's frame sits at `pose`.
     pub fn transformed(&self, pose: &Isometry3<f64>) -> Self {
         let r = pose.rotation.to_rotation_matrix();
-        Self { mass: self.mass, com: (pose * nalgebra::Point3::from(self.com)).coords, inertia: r * self.inertia * r.transpose() }
+        Self {
+            mass: self.mass,
+            com: (pose * nalgebra::Point3::from(self.com)).coords,
+            inertia: r * self.inertia * r.transpose(),
+        }
     }
 
     /// Two bodies rigidly joined (same frame), by the parallel-axis theorem.
@@ -80,8 +88,15 @@ mod tests {
 
     #[test]
     fn transforming_moves_the_centre_of_mass_and_rotates_the_inertia() {
-        let body = BodyInertia { mass: 2.0, com: Vector3::new(1.0, 0.0, 0.0), inertia: Matrix3::from_diagonal(&Vector3::new(1.0, 2.0, 3.0)) };
-        let pose = Isometry3::from_parts(Translation3::new(0.0, 0.0, 5.0), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::FRAC_PI_2));
+        let body = BodyInertia {
+            mass: 2.0,
+            com: Vector3::new(1.0, 0.0, 0.0),
+            inertia: Matrix3::from_diagonal(&Vector3::new(1.0, 2.0, 3.0)),
+        };
+        let pose = Isometry3::from_parts(
+            Translation3::new(0.0, 0.0, 5.0),
+            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::FRAC_PI_2),
+        );
         let t = body.transformed(&pose);
         assert!((t.com - Vector3::new(0.0, 1.0, 5.0)).norm() < 1e-12);
         assert!((t.inertia - Matrix3::from_diagonal(&Vector3::new(2.0, 1.0, 3.0))).norm() < 1e-12);

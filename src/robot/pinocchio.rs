@@ -58,7 +58,13 @@ unsafe extern "C" {
         jac: *mut f64,
         jdot_qdot: *mut f64,
     ) -> c_int;
-    fn fr_pin_arm_fk_jac(arm: *mut FrPinArm, q: *const f64, tcp_pos: *mut f64, tcp_rot: *mut f64, jac: *mut f64) -> c_int;
+    fn fr_pin_arm_fk_jac(
+        arm: *mut FrPinArm,
+        q: *const f64,
+        tcp_pos: *mut f64,
+        tcp_rot: *mut f64,
+        jac: *mut f64,
+    ) -> c_int;
 }
 
 /// Kinematics and dynamics of the arm at one state; everything in the base frame.
@@ -215,7 +221,15 @@ impl Kinematics {
         let mut jdot_qdot = Vector6::zeros();
         // SAFETY: as in `dynamics`.
         check(unsafe {
-            fr_pin_arm_task(self.raw.as_ptr(), q.as_ptr(), dq.as_ptr(), p.as_mut_ptr(), r.as_mut_ptr(), jacobian.as_mut_ptr(), jdot_qdot.as_mut_ptr())
+            fr_pin_arm_task(
+                self.raw.as_ptr(),
+                q.as_ptr(),
+                dq.as_ptr(),
+                p.as_mut_ptr(),
+                r.as_mut_ptr(),
+                jacobian.as_mut_ptr(),
+                jdot_qdot.as_mut_ptr(),
+            )
         })?;
         Ok(TaskKinematics { tcp: isometry(&p, &r), jacobian, jdot_qdot })
     }
@@ -226,7 +240,9 @@ impl Kinematics {
         let mut r = Matrix3::zeros();
         let mut jacobian = Jacobian::zeros();
         // SAFETY: as in `dynamics`.
-        check(unsafe { fr_pin_arm_fk_jac(self.raw.as_ptr(), q.as_ptr(), p.as_mut_ptr(), r.as_mut_ptr(), jacobian.as_mut_ptr()) })?;
+        check(unsafe {
+            fr_pin_arm_fk_jac(self.raw.as_ptr(), q.as_ptr(), p.as_mut_ptr(), r.as_mut_ptr(), jacobian.as_mut_ptr())
+        })?;
         Ok((isometry(&p, &r), jacobian))
     }
 

@@ -13,8 +13,8 @@ use mujoco_rs::prelude::*;
 use mujoco_rs::renderer::MjRenderer;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 
-use super::world::World;
 use super::SimError;
+use super::world::World;
 
 /// The default image size (pixels, square), as in the paper and RLBench's 128x128 setting.
 pub const DEFAULT_IMAGE_SIZE: usize = 128;
@@ -107,7 +107,9 @@ impl CameraRig {
             .depth(true)
             .opts(options)
             .build(model)
-            .map_err(|e| SimError::Render(format!("{e} (offscreen EGL; Mesa's llvmpipe driver provides it headless)")))?;
+            .map_err(|e| {
+                SimError::Render(format!("{e} (offscreen EGL; Mesa's llvmpipe driver provides it headless)"))
+            })?;
         let far = (model.vis().map.zfar * model.stat().extent as f32) * 0.999;
         Ok(Self { renderer, cameras, size, far })
     }
@@ -140,7 +142,8 @@ impl CameraRig {
         let id = self.cameras[index].1;
         let data = world.data();
         let r_mj = Matrix3::from_row_slice(&data.cam_xmat()[id]);
-        let r_cv = Rotation3::from_matrix_unchecked(r_mj * Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, -1.0, -1.0)));
+        let r_cv =
+            Rotation3::from_matrix_unchecked(r_mj * Matrix3::from_diagonal(&nalgebra::Vector3::new(1.0, -1.0, -1.0)));
         let p = data.cam_xpos()[id];
         Isometry3::from_parts(Translation3::new(p[0], p[1], p[2]), UnitQuaternion::from_rotation_matrix(&r_cv))
     }
@@ -163,7 +166,11 @@ impl CameraRig {
     }
 
     /// Draws camera `index` of `data` into the renderer's buffers.
-    pub(crate) fn draw(&mut self, data: &mut mujoco_rs::prelude::MjData<Box<mujoco_rs::prelude::MjModel>>, index: usize) -> Result<(), SimError> {
+    pub(crate) fn draw(
+        &mut self,
+        data: &mut mujoco_rs::prelude::MjData<Box<mujoco_rs::prelude::MjModel>>,
+        index: usize,
+    ) -> Result<(), SimError> {
         self.renderer.set_camera(MjvCamera::new_fixed(self.cameras[index].1));
         self.renderer.sync_data(data).map_err(|e| SimError::Render(e.to_string()))?;
         self.renderer.render().map_err(|e| SimError::Render(e.to_string()))

@@ -17,7 +17,13 @@ pub fn depth_png(frame: &RgbdFrame) -> Result<Vec<u8>, png::EncodingError> {
     encode(k.width, k.height, png::ColorType::Grayscale, png::BitDepth::Sixteen, &bytes)
 }
 
-fn encode(w: usize, h: usize, color: png::ColorType, depth: png::BitDepth, data: &[u8]) -> Result<Vec<u8>, png::EncodingError> {
+fn encode(
+    w: usize,
+    h: usize,
+    color: png::ColorType,
+    depth: png::BitDepth,
+    data: &[u8],
+) -> Result<Vec<u8>, png::EncodingError> {
     let mut out = Vec::new();
     let mut encoder = png::Encoder::new(&mut out, w as u32, h as u32);
     encoder.set_color(color);

@@ -10,8 +10,8 @@ mod logging;
 pub mod scene;
 pub mod world;
 
+pub use crate::robot::JointVector;
 pub use camera::{CameraRig, Intrinsics, RgbdFrame, Visuals};
 pub use cloud::{PointCloud, Workspace};
 pub use error::SimError;
-pub use crate::robot::JointVector;
 pub use world::{ArmDynamicsReference, ArmState, Video, World};

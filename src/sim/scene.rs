@@ -13,8 +13,15 @@ use crate::deps::Deps;
 pub const ARM_JOINTS: [&str; 7] =
     ["panda_joint1", "panda_joint2", "panda_joint3", "panda_joint4", "panda_joint5", "panda_joint6", "panda_joint7"];
 /// The torque motors of the arm joints (defined by the scene file).
-pub const ARM_MOTORS: [&str; 7] =
-    ["panda_torque1", "panda_torque2", "panda_torque3", "panda_torque4", "panda_torque5", "panda_torque6", "panda_torque7"];
+pub const ARM_MOTORS: [&str; 7] = [
+    "panda_torque1",
+    "panda_torque2",
+    "panda_torque3",
+    "panda_torque4",
+    "panda_torque5",
+    "panda_torque6",
+    "panda_torque7",
+];
 /// The two finger slide joints of the Franka hand (m, 0 = closed, 0.04 = open).
 pub const FINGER_JOINTS: [&str; 2] = ["panda_finger_joint1", "panda_finger_joint2"];
 /// The hand's tendon-driven position actuator: ctrl 0 closes, 1 opens.
@@ -101,7 +108,11 @@ pub fn compose(scene: &Path, extra: &[PathBuf], deps: &Deps) -> Result<MjModel, 
             return Err(SimError::SceneNotFound { path: path.clone() });
         }
         let mut objects = load(path)?;
-        world.world_body_mut().add_frame().attach_by_deep_copy(&mut objects, "", "").map_err(|e| edit_error(path, e))?;
+        world
+            .world_body_mut()
+            .add_frame()
+            .attach_by_deep_copy(&mut objects, "", "")
+            .map_err(|e| edit_error(path, e))?;
     }
 
     world.compile().map_err(|e| SimError::Load { path: scene.to_path_buf(), message: e.to_string() })
@@ -109,7 +120,8 @@ pub fn compose(scene: &Path, extra: &[PathBuf], deps: &Deps) -> Result<MjModel, 
 
 /// Adds the wrist camera and grasp-friendly finger contacts to the hand before it is attached.
 fn prepare_hand(hand: &mut MjSpec, hand_path: &Path) -> Result<(), SimError> {
-    let missing = |kind, name: &str| SimError::MissingElement { path: hand_path.to_path_buf(), kind, name: name.into() };
+    let missing =
+        |kind, name: &str| SimError::MissingElement { path: hand_path.to_path_buf(), kind, name: name.into() };
     // The hand repeats the arm's `wrist_site`, `panda` texture and `panda` material (the same
     // texture file and values); keep the arm's, and the hand's geoms resolve to them by name.
     // SAFETY (each delete): no other handle to the element is alive; the spec stays valid.

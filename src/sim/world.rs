@@ -150,7 +150,9 @@ impl World {
     pub fn reset_to(&mut self, name: &str) -> Result<(), SimError> {
         let model = self.data.model();
         if let Some(key) = model.name_to_id(MjtObjBase::mjOBJ_KEY, name) {
-            self.data.reset_keyframe(key).map_err(|e| SimError::InvalidInput { what: "keyframe", detail: e.to_string() })?;
+            self.data
+                .reset_keyframe(key)
+                .map_err(|e| SimError::InvalidInput { what: "keyframe", detail: e.to_string() })?;
             self.data.forward();
             return Ok(());
         }
@@ -209,11 +211,21 @@ impl World {
     /// (square images of `size` pixels). Rendering costs a few ms per frame.
     pub fn start_recording(&mut self, camera: &str, size: usize, fps: f64) -> Result<(), SimError> {
         if !(fps > 0.0 && fps <= 1000.0) {
-            return Err(SimError::InvalidInput { what: "video frame rate", detail: format!("{fps} fps; expected (0, 1000]") });
+            return Err(SimError::InvalidInput {
+                what: "video frame rate",
+                detail: format!("{fps} fps; expected (0, 1000]"),
+            });
         }
         let rig = super::CameraRig::new(self, size, super::Visuals::Full)?;
         let index = rig.camera_index(camera)?;
-        self.recorder = Some(Recorder { rig, camera: index, period: 1.0 / fps, next: self.time(), frames: Vec::new(), error: None });
+        self.recorder = Some(Recorder {
+            rig,
+            camera: index,
+            period: 1.0 / fps,
+            next: self.time(),
+            frames: Vec::new(),
+            error: None,
+        });
         Ok(())
     }
 
@@ -260,7 +272,14 @@ impl World {
         let dq = JointVector::from_fn(|i, _| qvel[self.arm.dof[i]]);
         let tau = JointVector::from_fn(|i, _| force[self.arm.motor[i]]);
         let gripper_width = self.arm.finger_qpos.iter().map(|&a| qpos[a]).sum();
-        ArmState { time: self.time(), q, dq, tau, tcp_in_base: self.base_pose().inverse() * self.tcp_pose(), gripper_width }
+        ArmState {
+            time: self.time(),
+            q,
+            dq,
+            tau,
+            tcp_in_base: self.base_pose().inverse() * self.tcp_pose(),
+            gripper_width,
+        }
     }
 
     /// Finger joint velocities (m/s), for grasp detection.
@@ -369,11 +388,7 @@ impl World {
         }
         let base = self.base_pose();
         let g = Vector3::from(m.ffi().opt.gravity);
-        Ok(ArmDescription {
-            links,
-            tcp: world_to_last * self.tcp_pose(),
-            gravity: base.rotation.inverse() * g,
-        })
+        Ok(ArmDescription { links, tcp: world_to_last * self.tcp_pose(), gravity: base.rotation.inverse() * g })
     }
 
     fn body_frame(&self, b: usize) -> Isometry3<f64> {

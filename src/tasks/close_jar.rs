@@ -12,8 +12,8 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::layout::scatter;
 use super::grasp::{pick_and_place, top_down};
+use super::layout::scatter;
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;

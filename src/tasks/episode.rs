@@ -74,7 +74,13 @@ pub fn run_episode(
     };
     let base = world.base_pose();
     let mut result = EpisodeResult {
-        episode: Episode { task: task.name(), variation, instruction: task.instruction(variation), seed, state: Default::default() },
+        episode: Episode {
+            task: task.name(),
+            variation,
+            instruction: task.instruction(variation),
+            seed,
+            state: Default::default(),
+        },
         success: false,
         keyframes: keyframes.len(),
         reached: 0,
@@ -130,7 +136,12 @@ fn execute(
 pub trait KeyframePolicy {
     /// Keyframe `k` of the episode (world frame) for `instruction`, from `observation` (the
     /// observer's camera frames and the proprioception).
-    fn next_keyframe(&mut self, instruction: &str, k: usize, observation: &KeyframeObservation) -> Result<Keyframe, TaskError>;
+    fn next_keyframe(
+        &mut self,
+        instruction: &str,
+        k: usize,
+        observation: &KeyframeObservation,
+    ) -> Result<Keyframe, TaskError>;
 }
 
 /// Resets the task (seeded) and lets `policy` act closed loop: observe with the observer's
@@ -150,7 +161,13 @@ pub fn run_policy_episode(
     let base = world.base_pose();
     let instruction = task.instruction(variation);
     let mut result = EpisodeResult {
-        episode: Episode { task: task.name(), variation, instruction: instruction.clone(), seed, state: Default::default() },
+        episode: Episode {
+            task: task.name(),
+            variation,
+            instruction: instruction.clone(),
+            seed,
+            state: Default::default(),
+        },
         success: false,
         keyframes: 0,
         reached: 0,
@@ -181,7 +198,12 @@ pub fn run_policy_episode(
 /// Resets the world and the task (seeded), builds the control stack and lets the objects
 /// settle while the controller holds the arm. Returns the task state, the runner and the start
 /// time.
-fn begin(task: &dyn Task, world: &mut World, variation: usize, seed: u64) -> Result<(super::TaskState, Runner, f64), TaskError> {
+fn begin(
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+) -> Result<(super::TaskState, Runner, f64), TaskError> {
     if variation >= task.variation_count() {
         return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 });
     }
@@ -191,7 +213,8 @@ fn begin(task: &dyn Task, world: &mut World, variation: usize, seed: u64) -> Res
     let limits = JointLimits::panda().map_err(|e| TaskError::Config(e.to_string()))?;
     let config = OscConfig::default_profile().map_err(|e| TaskError::Config(e.to_string()))?;
     let description = world.arm_description()?;
-    let mut runner = Runner::build(&description, limits, config, &world.read_state(), world.timestep()).map_err(|e| TaskError::Config(e.to_string()))?;
+    let mut runner = Runner::build(&description, limits, config, &world.read_state(), world.timestep())
+        .map_err(|e| TaskError::Config(e.to_string()))?;
     let t0 = world.time();
     hold(world, &mut runner, SETTLE_S)?;
     Ok((state, runner, t0))
@@ -230,7 +253,11 @@ fn tcp_proprio(world: &World, gripper_open: bool) -> [f32; 8] {
     proprio_of(&Keyframe::at(&world.tcp_pose(), gripper_open))
 }
 
-fn observe(world: &mut World, cameras: Option<&mut Observer<'_>>, gripper_open: bool) -> Result<KeyframeObservation, TaskError> {
+fn observe(
+    world: &mut World,
+    cameras: Option<&mut Observer<'_>>,
+    gripper_open: bool,
+) -> Result<KeyframeObservation, TaskError> {
     let mut frames = Vec::new();
     if let Some(o) = cameras {
         for &i in &o.cameras {
@@ -260,7 +287,11 @@ impl EpisodeResult {
             width: w,
             rgb: Vec::new(),
             depth: Vec::new(),
-            intrinsics: first.frames.iter().flat_map(|f| f.intrinsics.matrix().transpose().iter().map(|&v| v as f32).collect::<Vec<_>>()).collect(),
+            intrinsics: first
+                .frames
+                .iter()
+                .flat_map(|f| f.intrinsics.matrix().transpose().iter().map(|&v| v as f32).collect::<Vec<_>>())
+                .collect(),
             extrinsics: Vec::new(),
             proprio: self.observations.iter().flat_map(|o| o.proprio).collect(),
             action: self.actions.iter().flatten().copied().collect(),

@@ -6,7 +6,8 @@ use crate::control::runner::Keyframe;
 /// The hand pointing down (TCP z = world -z), turned by `yaw` about the vertical; the fingers
 /// close along the TCP's y axis.
 pub fn top_down(yaw: f64) -> UnitQuaternion<f64> {
-    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw) * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
+    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)
+        * UnitQuaternion::from_axis_angle(&Vector3::x_axis(), std::f64::consts::PI)
 }
 
 /// The hand pointing horizontally along `approach` (unit, horizontal), fingers closing

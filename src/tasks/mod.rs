@@ -80,7 +80,13 @@ pub trait Task: Send + Sync {
 
 /// Every task, in Table A's order.
 pub fn all() -> Vec<Box<dyn Task>> {
-    vec![Box::new(open_drawer::OpenDrawer), Box::new(push_buttons::PushButtons), Box::new(slide_block::SlideBlock), Box::new(close_jar::CloseJar), Box::new(stack_blocks::StackBlocks)]
+    vec![
+        Box::new(open_drawer::OpenDrawer),
+        Box::new(push_buttons::PushButtons),
+        Box::new(slide_block::SlideBlock),
+        Box::new(close_jar::CloseJar),
+        Box::new(stack_blocks::StackBlocks),
+    ]
 }
 
 pub fn by_name(name: &str) -> Result<Box<dyn Task>, TaskError> {

@@ -26,7 +26,12 @@ impl FlowRamActor {
 }
 
 impl KeyframePolicy for FlowRamActor {
-    fn next_keyframe(&mut self, instruction: &str, k: usize, observation: &KeyframeObservation) -> Result<Keyframe, TaskError> {
+    fn next_keyframe(
+        &mut self,
+        instruction: &str,
+        k: usize,
+        observation: &KeyframeObservation,
+    ) -> Result<Keyframe, TaskError> {
         let observation = policy_observation(instruction, observation)?;
         let options = SamplingOptions { seed: self.options.seed + k as u64, ..self.options };
         let start = Instant::now();

@@ -13,8 +13,8 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::layout::{apart, scatter};
 use super::grasp::{keyframe, top_down};
+use super::layout::{apart, scatter};
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;
@@ -49,7 +49,11 @@ impl Task for PushButtons {
     }
 
     fn instruction(&self, variation: usize) -> String {
-        sequence(variation).iter().map(|&c| format!("push the {} button", colors::name(c))).collect::<Vec<_>>().join(", then ")
+        sequence(variation)
+            .iter()
+            .map(|&c| format!("push the {} button", colors::name(c)))
+            .collect::<Vec<_>>()
+            .join(", then ")
     }
 
     fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError> {
@@ -65,10 +69,8 @@ impl Task for PushButtons {
             world.set_joint_position(&format!("button_{i}_press"), 0.0)?;
         }
         // Targets as button names, in the order to press them.
-        let names = targets
-            .iter()
-            .map(|c| format!("button_{}", palette.iter().position(|p| p == c).unwrap_or(0)))
-            .collect();
+        let names =
+            targets.iter().map(|c| format!("button_{}", palette.iter().position(|p| p == c).unwrap_or(0))).collect();
         Ok(TaskState { targets: names, events: Vec::new() })
     }
 

@@ -17,8 +17,12 @@ use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;
 
-const TARGETS: [(&str, [f32; 4]); 4] =
-    [("green", [0.0, 0.8, 0.0, 1.0]), ("blue", [0.0, 0.2, 1.0, 1.0]), ("pink", [1.0, 0.4, 0.7, 1.0]), ("yellow", [1.0, 0.9, 0.0, 1.0])];
+const TARGETS: [(&str, [f32; 4]); 4] = [
+    ("green", [0.0, 0.8, 0.0, 1.0]),
+    ("blue", [0.0, 0.2, 1.0, 1.0]),
+    ("pink", [1.0, 0.4, 0.7, 1.0]),
+    ("yellow", [1.0, 0.9, 0.0, 1.0]),
+];
 const ZONE_OFFSET: f64 = 0.13;
 const ZONE_HALF: f64 = 0.06;
 const BLOCK_HALF: f64 = 0.025;
@@ -51,7 +55,8 @@ impl Task for SlideBlock {
         )?;
         let mut colours: Vec<usize> = (0..TARGETS.len()).collect();
         colours.shuffle(rng);
-        let directions = [Vector2::new(1.0, 0.0), Vector2::new(-1.0, 0.0), Vector2::new(0.0, 1.0), Vector2::new(0.0, -1.0)];
+        let directions =
+            [Vector2::new(1.0, 0.0), Vector2::new(-1.0, 0.0), Vector2::new(0.0, 1.0), Vector2::new(0.0, -1.0)];
         let mut target = String::new();
         for (zone, (&colour, d)) in colours.iter().zip(directions).enumerate() {
             let p = centre + d * ZONE_OFFSET;
@@ -66,7 +71,9 @@ impl Task for SlideBlock {
     }
 
     fn success(&self, world: &World, state: &TaskState) -> bool {
-        let (Ok(block), Ok(zone)) = (world.body_pose("block"), world.body_pose(&state.targets[0])) else { return false };
+        let (Ok(block), Ok(zone)) = (world.body_pose("block"), world.body_pose(&state.targets[0])) else {
+            return false;
+        };
         let d = block.translation.vector - zone.translation.vector;
         d.x.abs() < ZONE_HALF && d.y.abs() < ZONE_HALF && (block.translation.z - TABLE_Z - BLOCK_HALF).abs() < 0.01
     }

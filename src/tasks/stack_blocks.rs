@@ -14,8 +14,8 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::layout::{apart, scatter};
 use super::grasp::{pick_and_place, symmetric_yaw, top_down};
+use super::layout::{apart, scatter};
 use super::{Task, TaskError, TaskState};
 use crate::control::runner::Keyframe;
 use crate::sim::World;
@@ -55,7 +55,9 @@ impl Task for StackBlocks {
         let (colour, count) = colour_and_count(variation);
         let platform = Vector2::new(rng.random_range(0.5..0.58), rng.random_range(-0.05..0.05));
         world.set_fixed_body_pose("platform", &Translation3::new(platform.x, platform.y, TABLE_Z).into())?;
-        let spots = scatter(rng, BLOCKS, 0.38..0.66, -0.28..0.28, |placed, p| (p - platform).norm() > 0.12 && apart(0.08)(placed, p));
+        let spots = scatter(rng, BLOCKS, 0.38..0.66, -0.28..0.28, |placed, p| {
+            (p - platform).norm() > 0.12 && apart(0.08)(placed, p)
+        });
         let mut others: Vec<usize> = (0..COLORS.len()).filter(|&c| c != colour).collect();
         others.shuffle(rng);
         let mut targets = Vec::new();
@@ -64,7 +66,10 @@ impl Task for StackBlocks {
             let yaw = rng.random_range(-45f64..45.0).to_radians();
             world.set_body_pose(
                 &name,
-                &Isometry3::from_parts(Translation3::new(spot.x, spot.y, TABLE_Z + SIZE / 2.0), UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw)),
+                &Isometry3::from_parts(
+                    Translation3::new(spot.x, spot.y, TABLE_Z + SIZE / 2.0),
+                    UnitQuaternion::from_axis_angle(&Vector3::z_axis(), yaw),
+                ),
             )?;
             let c = if i < TARGET_BLOCKS { colour } else { others[i - TARGET_BLOCKS] };
             world.set_geom_rgba(&name, colors::rgba(c))?;
@@ -98,7 +103,11 @@ impl Task for StackBlocks {
             let block = world.body_pose(name)?;
             let yaw = symmetric_yaw(yaw_of(&block), std::f64::consts::FRAC_PI_2, 0.0);
             let pick = block.translation.vector + Vector3::new(0.0, 0.0, 0.005);
-            let place = Vector3::new(platform.x, platform.y, TABLE_Z + PLATFORM_TOP + SIZE * (level as f64 + 0.5) + 0.005 + 0.004);
+            let place = Vector3::new(
+                platform.x,
+                platform.y,
+                TABLE_Z + PLATFORM_TOP + SIZE * (level as f64 + 0.5) + 0.005 + 0.004,
+            );
             keyframes.extend(pick_and_place(pick, top_down(yaw), place, top_down(0.0), 0.12));
         }
         Ok(keyframes)

@@ -29,11 +29,7 @@ pub fn randn(rng: &mut ChaCha8Rng, shape: &[usize]) -> Tensor {
 /// max |got - want| / max |want|
 pub fn rel_err(got: &Tensor, want: &Tensor) -> f32 {
     let max_abs = |t: Tensor| -> f32 {
-        t.abs()
-            .and_then(|t| t.flatten_all())
-            .and_then(|t| t.max(0))
-            .and_then(|t| t.to_scalar::<f32>())
-            .expect("max")
+        t.abs().and_then(|t| t.flatten_all()).and_then(|t| t.max(0)).and_then(|t| t.to_scalar::<f32>()).expect("max")
     };
     assert_eq!(got.dims(), want.dims(), "shapes differ");
     let diff = max_abs((got - want).expect("same shape"));
@@ -68,9 +64,7 @@ pub fn reference_scan(
         let bt = b.i((.., t, ..))?;
         let ct = c.i((.., t, ..))?;
         let decay = dt.unsqueeze(2)?.broadcast_mul(&a.unsqueeze(0)?)?.exp()?;
-        let drive = (&dt * &ut)?
-            .unsqueeze(2)?
-            .broadcast_mul(&bt.unsqueeze(1)?)?;
+        let drive = (&dt * &ut)?.unsqueeze(2)?.broadcast_mul(&bt.unsqueeze(1)?)?;
         h = ((decay * &h)? + drive)?;
         let y = (h.broadcast_mul(&ct.unsqueeze(1)?)?.sum(2)? + ut.broadcast_mul(d)?)?;
         ys.push(y);

@@ -17,25 +17,44 @@ pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
 /// with the target's name, so writers that choose a format by extension still see it. The file
 /// is fsynced, renamed over `path`, and the folder fsynced so the rename is durable.
 pub fn write_atomic_with(path: &Path, write: impl FnOnce(&Path) -> std::io::Result<()>) -> std::io::Result<()> {
+    write_atomic_or(path, write, |e| e)
+}
+
+/// [`write_atomic_with`] for writers with their own error type `E`: an error of `write` is
+/// returned as it was; an I/O error of the temporary file, the fsyncs or the rename is turned
+/// into `E` by `io_error`. On any error the temporary file is removed and `path` is untouched.
+pub fn write_atomic_or<E>(
+    path: &Path,
+    write: impl FnOnce(&Path) -> Result<(), E>,
+    io_error: impl FnOnce(std::io::Error) -> E,
+) -> Result<(), E> {
     use std::sync::atomic::{AtomicU64, Ordering};
     static COUNTER: AtomicU64 = AtomicU64::new(0);
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir)?;
-    let name = path.file_name().ok_or_else(|| {
-        std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("{} is not a file path", path.display()))
-    })?;
+    let name = match path.file_name() {
+        Some(name) => name,
+        None => {
+            let message = format!("{} is not a file path", path.display());
+            return Err(io_error(std::io::Error::new(std::io::ErrorKind::InvalidInput, message)));
+        }
+    };
+    if let Err(e) = std::fs::create_dir_all(dir) {
+        return Err(io_error(e));
+    }
     let tmp = dir.join(format!(
         ".tmp-{}-{}-{}",
         std::process::id(),
         COUNTER.fetch_add(1, Ordering::Relaxed),
         name.to_string_lossy()
     ));
-    let result = (|| {
-        write(&tmp)?;
-        std::fs::File::open(&tmp)?.sync_all()?;
-        std::fs::rename(&tmp, path)?;
-        std::fs::File::open(dir)?.sync_all()
-    })();
+    let result = write(&tmp).and_then(|()| {
+        (|| {
+            std::fs::File::open(&tmp)?.sync_all()?;
+            std::fs::rename(&tmp, path)?;
+            std::fs::File::open(dir)?.sync_all()
+        })()
+        .map_err(io_error)
+    });
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
     }

@@ -6,9 +6,10 @@ use flowram::data::Episode;
 use flowram::deps::Deps;
 use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SamplingOptions};
-use flowram::policy::observation::Observation;
-use flowram::policy::text::TextEncoder;
-use flowram::policy::train::{StepLoss, TrainProgress, Trainer, TrainingData, train};
+use flowram::policy::scene::observation::Observation;
+use flowram::policy::network::text_encoder::TextEncoder;
+use flowram::policy::training::data::TrainingData;
+use flowram::policy::training::trainer::{StepLoss, TrainProgress, Trainer, train};
 use flowram::sim::{CameraRig, Visuals};
 use flowram::tasks::{
     self,
@@ -42,7 +43,7 @@ fn tiny_config() -> PolicyConfig {
     c.observation.image_size = 64;
     // push_buttons' part of the table: a tighter box makes a normalised error fewer millimetres.
     c.observation.workspace =
-        flowram::policy::geometry::WorkspaceBounds::new([0.15, -0.35, 0.74], [0.85, 0.35, 1.14]).unwrap();
+        flowram::policy::scene::workspace::WorkspaceBounds::new([0.15, -0.35, 0.74], [0.85, 0.35, 1.14]).unwrap();
     c.observation.semantic_tokens = 128;
     c.observation.geometric_tokens = 32;
     c.observation.min_inside = 8;

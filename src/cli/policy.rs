@@ -7,9 +7,10 @@ use clap::Args;
 use flowram::deps::Deps;
 use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SampleProfile, SamplingOptions};
-use flowram::policy::observation::Observation;
-use flowram::policy::text::TextEncoder;
-use flowram::policy::train::{StepLoss, TrainProgress, Trainer, TrainingData, train};
+use flowram::policy::scene::observation::Observation;
+use flowram::policy::network::text_encoder::TextEncoder;
+use flowram::policy::training::data::TrainingData;
+use flowram::policy::training::trainer::{StepLoss, TrainProgress, Trainer, train};
 use serde::Serialize;
 
 use super::bench::median;
@@ -116,7 +117,7 @@ pub struct PredictArgs {
 
 #[derive(Serialize)]
 struct Prediction {
-    keyframe: flowram::policy::observation::KeyframePose,
+    keyframe: flowram::policy::scene::observation::KeyframePose,
     position_error_mm: f32,
     rotation_error_deg: f32,
     gripper_correct: bool,
@@ -129,7 +130,7 @@ struct PredictReport {
     instruction: String,
     steps: usize,
     drs: bool,
-    recorded: flowram::policy::observation::KeyframePose,
+    recorded: flowram::policy::scene::observation::KeyframePose,
     predictions: Vec<Prediction>,
     seconds: f64,
 }
@@ -177,7 +178,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         steps,
         if report.drs { "on" } else { "off" }
     );
-    let show = |k: &flowram::policy::observation::KeyframePose| {
+    let show = |k: &flowram::policy::scene::observation::KeyframePose| {
         format!(
             "position [{:.4}, {:.4}, {:.4}] m, quat wxyz [{:.3}, {:.3}, {:.3}, {:.3}], {}",
             k.position[0],
@@ -460,14 +461,13 @@ fn summarise(rows: &[(f32, f32, bool)]) -> Errors {
 /// The mean keyframe of `episodes` (mean position, chordal-mean rotation, majority gripper).
 fn mean_keyframe<'a>(
     episodes: impl Iterator<Item = &'a flowram::data::Episode>,
-) -> anyhow::Result<flowram::policy::observation::KeyframePose> {
-    use flowram::policy::geometry;
+) -> anyhow::Result<flowram::policy::scene::observation::KeyframePose> {
     let mut sum = [0f64; 9];
     let (mut count, mut open) = (0usize, 0usize);
     for e in episodes {
         for k in 0..e.keyframes() {
             let a = Observation::episode_action(e, k);
-            let r = geometry::quaternion_to_6d(a.quat_wxyz)?;
+            let r = flowram::policy::scene::rotation::quaternion_to_6d(a.quat_wxyz)?;
             for i in 0..3 {
                 sum[i] += f64::from(a.position[i]);
             }
@@ -480,9 +480,9 @@ fn mean_keyframe<'a>(
     }
     anyhow::ensure!(count > 0, "the training datasets hold no keyframes");
     let mean = |i: usize| (sum[i] / count as f64) as f32;
-    Ok(flowram::policy::observation::KeyframePose {
+    Ok(flowram::policy::scene::observation::KeyframePose {
         position: [mean(0), mean(1), mean(2)],
-        quat_wxyz: geometry::quaternion_from_6d(std::array::from_fn(|i| mean(3 + i))),
+        quat_wxyz: flowram::policy::scene::rotation::quaternion_from_6d(std::array::from_fn(|i| mean(3 + i))),
         gripper_open: 2 * open >= count,
     })
 }
@@ -510,7 +510,7 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
                 let target = Observation::episode_action(e, k);
                 let predicted =
                     policy.predict(&observation, &SamplingOptions { steps, samples: 1, drs: true, seed: k as u64 })?[0];
-                let row = |p: &flowram::policy::observation::KeyframePose| {
+                let row = |p: &flowram::policy::scene::observation::KeyframePose| {
                     let (d, r) = p.error_to(&target);
                     (d, r, p.gripper_open == target.gripper_open)
                 };

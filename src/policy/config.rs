@@ -5,8 +5,9 @@ use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
-use super::error::{PolicyError, Result};
-use super::geometry::{RadiusSchedule, WorkspaceBounds};
+use crate::policy::error::{PolicyError, Result};
+use crate::policy::scene::radius_schedule::RadiusSchedule;
+use crate::policy::scene::workspace::WorkspaceBounds;
 
 /// Everything that defines a FlowRAM model and how it is trained.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -110,18 +111,6 @@ impl PolicyConfig {
     /// The CPU-sized default (`models/policy/cpu.toml`).
     pub fn cpu_default() -> Result<Self> {
         Self::from_toml_file(&crate::deps::models_dir().join("policy/cpu.toml"))
-    }
-
-    /// The learning rate of optimiser step `step` (1-based): warm-up, then constant or cosine.
-    pub fn learning_rate_at(&self, step: u64) -> f64 {
-        let t = &self.train;
-        super::optim::LearningRateSchedule {
-            base: t.learning_rate,
-            warmup_steps: t.warmup_steps as u64,
-            decay_until: t.cosine_decay.then_some(t.steps as u64),
-            min: t.min_learning_rate,
-        }
-        .at(step)
     }
 
     /// Checks every value; the error names the field.

@@ -14,6 +14,24 @@ pub enum PolicyError {
     /// A file could not be read or written, or its content is wrong.
     #[error("{}: {message}", path.display())]
     File { path: PathBuf, message: String },
+    /// A new training run was started in a folder that already holds checkpoints.
+    #[error("{}: this run already has checkpoints; resume it, or train into another folder", run.display())]
+    RunHasCheckpoints { run: PathBuf },
+    /// A run was to be resumed, but its folder holds no committed checkpoint.
+    #[error("{}: no checkpoint to resume from; start the run afresh", run.display())]
+    NoCheckpoint { run: PathBuf },
 }
 
 pub type Result<T> = std::result::Result<T, PolicyError>;
+
+impl PolicyError {
+    /// A [`PolicyError::File`] about `path`.
+    pub fn file(path: &std::path::Path, message: impl Into<String>) -> Self {
+        PolicyError::File { path: path.to_path_buf(), message: message.into() }
+    }
+
+    /// An I/O error while doing `action` ("read", "write", ...) on `path`.
+    pub fn io(path: &std::path::Path, action: &str, e: std::io::Error) -> Self {
+        Self::file(path, format!("cannot {action}: {e}"))
+    }
+}

@@ -81,7 +81,7 @@ pub fn sample_flow_times<R: Rng + ?Sized>(rng: &mut R, batch: usize, sampling: F
     sampling.validate()?;
     let times = (0..batch)
         .map(|_| match sampling {
-            FlowTimeSampling::Uniform => rng.random::<f32>(),
+            FlowTimeSampling::Uniform => rng.random_range(0.0f32..1.0),
             FlowTimeSampling::LogitNormal { mean, std } => {
                 let logit = mean + std * standard_normal(rng);
                 // Keep strictly below 1 like the uniform case.
@@ -137,9 +137,7 @@ pub fn interpolate(a0: &Tensor, a1: &Tensor, t: &Tensor) -> Result<Tensor> {
         return Err(PolicyError::Invalid("interpolate: actions must be batched, [B, D]".into()));
     }
     let t = broadcast_times(t, a1)?;
-    // a0 + t * (a1 - a0) == t*a1 + (1-t)*a0.
-    let direction = (a1 - a0)?;
-    Ok(a0.add(&direction.broadcast_mul(&t)?)?)
+    Ok((a0.broadcast_mul(&t.affine(-1.0, 1.0)?)? + a1.broadcast_mul(&t)?)?)
 }
 
 /// The conditional target velocity of the straight path, `u = a1 - a0` (`[B, D]`).
@@ -257,7 +255,7 @@ where
     Ok(a)
 }
 
-// Workspace normalisation and 6D rotations live in `geometry`.
+// Workspace normalisation and 6D rotations live in `scene::workspace` and `scene::rotation`.
 
 #[cfg(test)]
 mod tests {

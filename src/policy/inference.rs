@@ -10,17 +10,19 @@ use candle_core::DType;
 use candle_nn::{VarBuilder, VarMap};
 use rand::SeedableRng;
 
-use super::checkpoint::{CheckpointStore, load_model_weights};
-use super::config::PolicyConfig;
-use super::error::{PolicyError, Result};
-use super::flow::{euler_sample, sample_source_noise};
-use super::geometry::RadiusSchedule;
-use super::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
-use super::model::{ACTION_DIMS, EncodedObservation, FlowRam, device};
-use super::observation::{KeyframePose, Observation};
-use super::runtime::in_pool;
-use super::text::TextEncoder;
-use super::train::read_checkpoint_config;
+use crate::policy::checkpoint::format::{EMA_FILE, read_checkpoint_config};
+use crate::policy::checkpoint::store::CheckpointStore;
+use crate::policy::checkpoint::weights::load_model_weights;
+use crate::policy::config::PolicyConfig;
+use crate::policy::error::{PolicyError, Result};
+use crate::policy::flow::{euler_sample, sample_source_noise};
+use crate::policy::scene::radius_schedule::RadiusSchedule;
+use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
+use crate::policy::flow::ACTION_DIMS;
+use crate::policy::network::model::{EncodedObservation, FlowRam, device};
+use crate::policy::scene::observation::{KeyframePose, Observation};
+use crate::policy::runtime::in_pool;
+use crate::policy::network::text_encoder::TextEncoder;
 
 /// How to sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -76,14 +78,14 @@ impl Policy {
         let config = read_checkpoint_config(&dir)?;
         let varmap = VarMap::new();
         let model = FlowRam::new(&config, VarBuilder::from_varmap(&varmap, DType::F32, &device()))?;
-        load_model_weights(&dir.join("ema.safetensors"), &varmap)?;
+        load_model_weights(&dir.join(EMA_FILE), &varmap)?;
         Ok(Self { model, text, checkpoint: Some(dir) })
     }
 
     /// A randomly initialised model (benchmarks).
     pub fn random(config: &PolicyConfig, text: TextEncoder) -> Result<Self> {
         let varmap = VarMap::new();
-        let model = FlowRam::new(config, super::init::seeded_var_builder(&varmap, config.train.seed, &device()))?;
+        let model = FlowRam::new(config, crate::policy::network::init::seeded_var_builder(&varmap, config.train.seed, &device()))?;
         Ok(Self { model, text, checkpoint: None })
     }
 

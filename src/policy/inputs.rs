@@ -4,13 +4,14 @@
 //! Augmentation (training) shifts a sample's whole scene and scales its brightness.
 use candle_core::{DType, Tensor};
 
-use super::config::PolicyConfig;
-use super::error::{PolicyError, Result};
-use super::geometry::{RadiusSchedule, select_geometric_tokens_cached};
-use super::model::{PrefixInputs, SuffixInputs, TEXT_WIDTH};
-use super::observation::{Observation, SceneCloud, lift_scene, proprio_features};
-use super::serialization::sort_far_to_near;
-use super::text::TextEncoder;
+use crate::policy::config::PolicyConfig;
+use crate::policy::error::{PolicyError, Result};
+use crate::policy::scene::radius_schedule::{RadiusSchedule, select_geometric_tokens_cached};
+use crate::policy::network::model::{PrefixInputs, SuffixInputs};
+use crate::policy::network::text_encoder::TEXT_HIDDEN_SIZE;
+use crate::policy::scene::observation::{Observation, SceneCloud, lift_scene, proprio_features};
+use crate::policy::scene::token_order::sort_far_to_near;
+use crate::policy::network::text_encoder::TextEncoder;
 
 /// An observation turned into what the network needs (everything that does not depend on the
 /// network's weights, computed once per observation).
@@ -64,7 +65,7 @@ pub fn prepare(
     let mut language = tokens.narrow(0, 0, t)?;
     if t < o.language_tokens {
         language = Tensor::cat(
-            &[language, Tensor::zeros((o.language_tokens - t, TEXT_WIDTH), DType::F32, tokens.device())?],
+            &[language, Tensor::zeros((o.language_tokens - t, TEXT_HIDDEN_SIZE), DType::F32, tokens.device())?],
             0,
         )?;
     }

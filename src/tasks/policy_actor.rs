@@ -6,7 +6,7 @@ use super::TaskError;
 use super::episode::{KeyframeObservation, KeyframePolicy};
 use crate::control::runner::Keyframe;
 use crate::policy::inference::{Policy, SamplingOptions};
-use crate::policy::observation::{CameraView, Observation};
+use crate::policy::scene::observation::{CameraView, Observation};
 
 /// A trained policy acting in lock-step with the simulation.
 pub struct FlowRamActor {

@@ -31,7 +31,7 @@
 //! gradients of every input; B and C gradients are summed over channel
 //! groups afterwards.
 
-use crate::policy::cpu_kernels::{
+use crate::policy::kernels::simd::{
     DisjointWriter, LANES, Lanes, contiguous_data, exp_interleaved, lane_sum, load_lanes, madd, sigmoid, silu,
     simd_kernel, softplus_interleaved, with_captured,
 };

@@ -92,12 +92,12 @@ macro_rules! simd_kernel {
             #[allow(clippy::too_many_arguments)]
             unsafe fn avx2($($arg: $ty),*) $(-> $ret)? { body::<true>($($arg),*) }
 
-            match $crate::policy::cpu_kernels::simd_level() {
+            match $crate::policy::kernels::simd::simd_level() {
                 // SAFETY: simd_level() only reports levels the CPU supports.
                 #[cfg(target_arch = "x86_64")]
-                $crate::policy::cpu_kernels::SimdLevel::Avx512 => unsafe { avx512($($arg),*) },
+                $crate::policy::kernels::simd::SimdLevel::Avx512 => unsafe { avx512($($arg),*) },
                 #[cfg(target_arch = "x86_64")]
-                $crate::policy::cpu_kernels::SimdLevel::Avx2Fma => unsafe { avx2($($arg),*) },
+                $crate::policy::kernels::simd::SimdLevel::Avx2Fma => unsafe { avx2($($arg),*) },
                 _ => body::<false>($($arg),*),
             }
         }

@@ -23,19 +23,17 @@
 //! depends only on the observation: inference runs it once and caches the scan state, then runs
 //! only the suffix at each Euler step. Heads on the last (action) token: velocity of the
 //! position (3) and of the rotation (6), and the gripper-open logit.
-use candle_core::{D, DType, Device, Tensor};
+use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
-use super::config::PolicyConfig;
-use super::error::{PolicyError, Result};
-use super::geometry::positional_encoding;
-use super::image_encoder::{ImageEncoder, ImageEncoderConfig};
-use super::mamba::{Conditioning, MambaConfig, MambaStack, StackState};
+use crate::policy::config::PolicyConfig;
+use crate::policy::error::{PolicyError, Result};
+use crate::policy::flow::ACTION_DIMS;
+use crate::policy::network::text_encoder::TEXT_HIDDEN_SIZE;
+use crate::policy::network::encoding::{positional_encoding, time_embedding};
+use crate::policy::network::image_encoder::{ImageEncoder, ImageEncoderConfig};
+use crate::policy::network::mamba::{Conditioning, MambaConfig, MambaStack, StackState};
 
-/// Width of the frozen text encoder's token features (all-MiniLM-L6-v2).
-pub const TEXT_WIDTH: usize = 384;
-/// Flowed action dimensions: normalised position (3) + 6D rotation (6).
-pub const ACTION_DIMS: usize = 9;
 /// Proprioception features: normalised position, 6D rotation, gripper open.
 pub const PROPRIO_DIMS: usize = 10;
 
@@ -166,7 +164,7 @@ impl FlowRam {
         Ok(Self {
             config: config.clone(),
             image_encoder: ImageEncoder::new(encoder_config, vb.pp("image_encoder"))?,
-            language_proj: candle_nn::linear(TEXT_WIDTH, c, vb.pp("language_proj"))?,
+            language_proj: candle_nn::linear(TEXT_HIDDEN_SIZE, c, vb.pp("language_proj"))?,
             action_in: candle_nn::linear(ACTION_DIMS, c, vb.pp("action_in"))?,
             token_types: vb.get_with_hints((4, c), "token_types", candle_nn::Init::Randn { mean: 0.0, stdev: 0.02 })?,
             proprio_mlp: Mlp::new(PROPRIO_DIMS, c, c, vb.pp("proprio_mlp"))?,
@@ -276,19 +274,6 @@ impl FlowRam {
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         self.heads(&last)
     }
-}
-
-/// Sinusoidal embedding of the flow time t in [0, 1] (as DiT, with t scaled by 1000):
-/// [B] -> [B, C], half sines, half cosines, periods from 2 pi / 1000 to 2 pi * 10.
-pub fn time_embedding(t: &Tensor, channels: usize) -> Result<Tensor> {
-    if channels % 2 != 0 {
-        return Err(PolicyError::Invalid(format!("time embedding needs an even width, got {channels}")));
-    }
-    let half = channels / 2;
-    let freqs: Vec<f32> = (0..half).map(|k| (-(10_000f32.ln()) * k as f32 / half as f32).exp()).collect();
-    let freqs = Tensor::from_vec(freqs, (1, half), t.device())?;
-    let angles = t.to_dtype(DType::F32)?.affine(1000.0, 0.0)?.unsqueeze(1)?.broadcast_mul(&freqs)?;
-    Ok(Tensor::cat(&[angles.sin()?, angles.cos()?], D::Minus1)?)
 }
 
 /// The CPU device the policy runs on.

@@ -4,8 +4,12 @@
 //! that semantic and geometric tokens are drawn from, and the action vector the flow runs on.
 use serde::Serialize;
 
-use super::error::{PolicyError, Result};
-use super::geometry::{self, WorkspaceBounds};
+use crate::policy::error::{PolicyError, Result};
+use super::farthest_point::farthest_point_sample;
+use super::lifting::lift_depth;
+use super::radius_schedule::global_geometric_tokens;
+use super::rotation::{quaternion_from_6d, quaternion_to_6d};
+use super::workspace::WorkspaceBounds;
 use crate::data::Episode;
 
 /// One camera's images and calibration.
@@ -53,7 +57,7 @@ impl KeyframePose {
     /// columns).
     pub fn to_action(&self, workspace: &WorkspaceBounds) -> Result<[f32; 9]> {
         let p = workspace.normalize(self.position);
-        let r = geometry::quaternion_to_6d(self.quat_wxyz)?;
+        let r = quaternion_to_6d(self.quat_wxyz)?;
         Ok([p[0], p[1], p[2], r[0], r[1], r[2], r[3], r[4], r[5]])
     }
 
@@ -61,7 +65,7 @@ impl KeyframePose {
     /// gripper-open logit.
     pub fn from_action(a: &[f32; 9], open_logit: f32, workspace: &WorkspaceBounds) -> Self {
         let position = workspace.denormalize([a[0], a[1], a[2]]);
-        let quat_wxyz = geometry::quaternion_from_6d([a[3], a[4], a[5], a[6], a[7], a[8]]);
+        let quat_wxyz = quaternion_from_6d([a[3], a[4], a[5], a[6], a[7], a[8]]);
         Self { position, quat_wxyz, gripper_open: open_logit > 0.0 }
     }
 
@@ -132,7 +136,7 @@ pub struct SceneCloud {
     /// cyclically when the cloud has fewer points), in scan order (Z-order curve).
     pub semantic: Vec<usize>,
     /// N2 indices into `points_norm`: the global geometric tokens
-    /// ([`geometry::global_geometric_tokens`]), computed once for every flow step that uses them.
+    /// ([`global_geometric_tokens`]), computed once for every flow step that uses them.
     pub geometric_global: Vec<usize>,
 }
 
@@ -150,7 +154,7 @@ pub fn lift_scene(
     let per_camera = grid * grid;
     let mut cloud = SceneCloud::default();
     for (c, view) in observation.cameras.iter().enumerate() {
-        let lifted = geometry::lift_depth(
+        let lifted = lift_depth(
             &view.depth,
             observation.size,
             observation.size,
@@ -168,12 +172,12 @@ pub fn lift_scene(
         ));
     }
     cloud.semantic = if cloud.points_norm.len() >= n1 {
-        geometry::farthest_point_sample(&cloud.points_norm, n1, 0)?
+        farthest_point_sample(&cloud.points_norm, n1, 0)?
     } else {
         (0..cloud.points_norm.len()).cycle().take(n1).collect()
     };
     // scan order: along a Z-order curve (see `serialization`)
-    super::serialization::sort_by_morton(&cloud.points_norm, &mut cloud.semantic);
-    cloud.geometric_global = geometry::global_geometric_tokens(&cloud.points_norm, n2)?;
+    crate::policy::scene::token_order::sort_by_morton(&cloud.points_norm, &mut cloud.semantic);
+    cloud.geometric_global = global_geometric_tokens(&cloud.points_norm, n2)?;
     Ok(cloud)
 }

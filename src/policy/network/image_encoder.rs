@@ -33,7 +33,7 @@ use candle_nn::{Init, VarBuilder};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::policy::conv_kernels::{AddUpsampled2, Im2Col, LayerNormSilu, Window};
+use crate::policy::kernels::conv_ops::{AddUpsampled2, Im2Col, LayerNormSilu, Window};
 use crate::policy::error::{PolicyError, Result};
 
 /// Normalisation inside the residual blocks.
@@ -577,7 +577,7 @@ mod tests {
     fn encoder_learns_a_per_pixel_colour_task() {
         // Features must predict each output pixel's mean red value: a quick
         // end-to-end check that forward, backward and AdamW fit together.
-        use crate::policy::optim::{AdamW, AdamWConfig};
+        use crate::policy::training::adamw::{AdamW, AdamWConfig};
         let dev = Device::Cpu;
         let varmap = VarMap::new();
         let vb = VarBuilder::from_varmap(&varmap, DType::F32, &dev);

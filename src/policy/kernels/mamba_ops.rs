@@ -2,13 +2,13 @@
 //! backward passes: RMSNorm with AdaLN modulation, the causal depthwise
 //! convolution with SiLU, the SiLU gate, and the gated residual. Each replaces
 //! 3 to 10 single-threaded candle ops (with libm `exp`) by one parallel pass
-//! that the SIMD dispatch of [`crate::policy::cpu_kernels`] vectorises.
+//! that the SIMD dispatch of [`crate::policy::kernels::simd`] vectorises.
 //!
 //! Shapes: tokens are `[B, L, width]` with the last dimension contiguous; the
 //! modulation operands may be strided views, including stride-0 broadcasts
 //! over L (one AdaLN condition shared by all tokens of a segment).
 
-use crate::policy::cpu_kernels::{
+use crate::policy::kernels::simd::{
     LANES, RowView, contiguous_data, f32_data, lane_sum, madd, map_in_place, silu, silu_grad, simd_kernel,
     with_captured,
 };

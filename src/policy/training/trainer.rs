@@ -2,115 +2,34 @@
 //! sampling over tasks and variations, conditional flow matching with the supplementary's loss
 //! weights, AdamW, EMA, augmentation, metrics, checkpoints, and an exact `--resume`.
 //!
-//! Run folder (`--out runs/NAME`): `checkpoints/` (see `checkpoint`), `metrics.csv`, `loss.png`.
+//! Run folder (`runs/NAME`): `checkpoints/` (see `policy::checkpoint`), `metrics.csv`, `loss.png`.
 //! Every step's randomness is a pure function of (seed, step), so a run killed and resumed from
 //! its last checkpoint continues exactly as the uninterrupted run would have.
-use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use std::sync::Arc;
 
 use candle_core::Tensor;
 use candle_nn::VarMap;
 use rand::Rng;
 
-use super::checkpoint::{CheckpointStore, TrainerState, load_checkpoint, step_rng_for};
-use super::config::PolicyConfig;
-use super::error::{PolicyError, Result};
-use super::flow::{LossWeights, flow_matching_loss, sample_source_noise};
-use super::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
-use super::metrics::{MetricsLog, MetricsRow, plot_loss_curve, read_metrics};
-use super::model::{ACTION_DIMS, FlowRam, device};
-use super::observation::Observation;
-use super::optim::{AdamW, AdamWConfig, Ema, EmaConfig};
-use super::text::TextEncoder;
-use crate::data::Episode;
-
-/// One training sample: keyframe `k` of episode `episode`.
-#[derive(Debug, Clone, Copy)]
-struct SampleRef {
-    episode: usize,
-    k: usize,
-}
-
-/// Demonstrations grouped by task and variation, with observations prepared lazily (and kept).
-pub struct TrainingData {
-    episodes: Vec<Episode>,
-    /// task -> variation -> episode indices.
-    groups: BTreeMap<String, BTreeMap<usize, Vec<usize>>>,
-    prepared: Vec<Vec<Option<Arc<PreparedObservation>>>>,
-}
-
-impl TrainingData {
-    /// Loads dataset folders (episodes that fail to load are reported on stderr and skipped).
-    pub fn load(dirs: &[PathBuf]) -> Result<Self> {
-        let mut episodes = Vec::new();
-        for dir in dirs {
-            let loaded = crate::data::load_dataset(dir)
-                .map_err(|e| PolicyError::File { path: dir.clone(), message: e.to_string() })?;
-            for (path, e) in &loaded.failures {
-                eprintln!("warning: skipping {}: {e}", path.display());
-            }
-            episodes.extend(loaded.episodes);
-        }
-        Self::from_episodes(episodes)
-    }
-
-    pub fn from_episodes(episodes: Vec<Episode>) -> Result<Self> {
-        let episodes: Vec<Episode> = episodes.into_iter().filter(|e| e.success && e.keyframes() > 0).collect();
-        if episodes.is_empty() {
-            return Err(PolicyError::Invalid(
-                "no successful episode with keyframes to train on: collect some with `flowram collect`".into(),
-            ));
-        }
-        let cameras = &episodes[0].cameras;
-        let mut groups: BTreeMap<String, BTreeMap<usize, Vec<usize>>> = BTreeMap::new();
-        for (i, e) in episodes.iter().enumerate() {
-            if &e.cameras != cameras || e.height != episodes[0].height {
-                return Err(PolicyError::Invalid(format!(
-                    "datasets disagree on cameras or image size ({:?} {}px vs {:?} {}px): train on datasets collected alike",
-                    e.cameras, e.height, cameras, episodes[0].height
-                )));
-            }
-            groups.entry(e.task.clone()).or_default().entry(e.variation).or_default().push(i);
-        }
-        let prepared = episodes.iter().map(|e| vec![None; e.keyframes()]).collect();
-        Ok(Self { episodes, groups, prepared })
-    }
-
-    pub fn episodes(&self) -> &[Episode] {
-        &self.episodes
-    }
-
-    /// Keyframe samples in all.
-    pub fn samples(&self) -> usize {
-        self.episodes.iter().map(Episode::keyframes).sum()
-    }
-
-    /// A task uniformly, then a variation of it uniformly, an episode of that, a keyframe.
-    fn draw(&self, rng: &mut impl Rng) -> SampleRef {
-        let tasks: Vec<&BTreeMap<usize, Vec<usize>>> = self.groups.values().collect();
-        let variations = tasks[rng.random_range(0..tasks.len())];
-        let episodes: Vec<&Vec<usize>> = variations.values().collect();
-        let of_variation = episodes[rng.random_range(0..episodes.len())];
-        let episode = of_variation[rng.random_range(0..of_variation.len())];
-        SampleRef { episode, k: rng.random_range(0..self.episodes[episode].keyframes()) }
-    }
-
-    fn prepared(
-        &mut self,
-        s: SampleRef,
-        config: &PolicyConfig,
-        text: &mut TextEncoder,
-    ) -> Result<Arc<PreparedObservation>> {
-        if let Some(p) = &self.prepared[s.episode][s.k] {
-            return Ok(p.clone());
-        }
-        let observation = Observation::from_episode(&self.episodes[s.episode], s.k)?;
-        let p = Arc::new(prepare(&observation, config, text)?);
-        self.prepared[s.episode][s.k] = Some(p.clone());
-        Ok(p)
-    }
-}
+use super::adamw::{AdamW, AdamWConfig};
+use super::checkpointing::{load_checkpoint, save_checkpoint};
+use super::data::TrainingData;
+use super::ema::{Ema, EmaConfig};
+use super::loss_plot::plot_loss_curve;
+use super::lr_schedule::LearningRateSchedule;
+use crate::policy::training::metrics::{MetricsLog, MetricsRow, read_metrics};
+use super::rng::step_rng_for;
+use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
+use crate::policy::checkpoint::store::CheckpointStore;
+use crate::policy::config::PolicyConfig;
+use crate::policy::error::{PolicyError, Result};
+use crate::policy::flow::{ACTION_DIMS, FlowTimeSampling, LossWeights, flow_matching_loss, flow_training_sample};
+use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, suffix_inputs};
+use crate::policy::network::init::seeded_var_builder;
+use crate::policy::network::model::{FlowRam, device};
+use crate::policy::network::text_encoder::TextEncoder;
+use crate::policy::runtime::in_pool;
+use crate::policy::scene::observation::Observation;
 
 /// The losses of one step (unweighted components and the weighted total).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -135,7 +54,7 @@ impl Trainer {
     /// A freshly initialised model (initialisation seeded by `config.train.seed`).
     pub fn new(config: &PolicyConfig) -> Result<Self> {
         let varmap = VarMap::new();
-        let vb = super::init::seeded_var_builder(&varmap, config.train.seed, &device());
+        let vb = seeded_var_builder(&varmap, config.train.seed, &device());
         let model = FlowRam::new(config, vb)?;
         let t = &config.train;
         let optimizer = AdamW::new(
@@ -156,12 +75,12 @@ impl Trainer {
     /// One optimiser step on a batch drawn with the randomness of step `self.step + 1`.
     pub fn train_step(&mut self, data: &mut TrainingData, text: &mut TextEncoder) -> Result<StepLoss> {
         // on a pool thread: see runtime::in_pool
-        super::runtime::in_pool(|| self.train_step_in_pool(data, text))
+        in_pool(|| self.train_step_in_pool(data, text))
     }
 
     fn train_step_in_pool(&mut self, data: &mut TrainingData, text: &mut TextEncoder) -> Result<StepLoss> {
         let step = self.step + 1;
-        self.optimizer.set_learning_rate(self.config.learning_rate_at(step))?;
+        self.optimizer.set_learning_rate(LearningRateSchedule::of(&self.config.train).at(step))?;
         let config = &self.config;
         let t_cfg = &config.train;
         let ws = &config.observation.workspace;
@@ -180,7 +99,7 @@ impl Trainer {
             let shift: [f32; 3] = std::array::from_fn(|a| 2.0 * aug_rng.random_range(-j..=j) / (hi[a] - lo[a]));
             let bj = t_cfg.brightness_jitter as f32;
             let brightness = 1.0 + aug_rng.random_range(-bj..=bj);
-            let action = Observation::episode_action(&data.episodes[s.episode], s.k);
+            let action = Observation::episode_action(&data.episodes()[s.episode], s.k);
             let mut a1 = action.to_action(ws)?;
             for a in 0..3 {
                 a1[a] += shift[a];
@@ -191,13 +110,11 @@ impl Trainer {
         }
         let a1 =
             Tensor::from_vec(targets.iter().flatten().copied().collect::<Vec<f32>>(), (b, ACTION_DIMS), &device())?;
-        let a0 = sample_source_noise(&mut noise_rng, b, ACTION_DIMS, &device())?;
-        let t: Vec<f32> = (0..b).map(|_| noise_rng.random_range(0.0f32..1.0)).collect();
-        let t_tensor = Tensor::from_vec(t.clone(), (b, 1), &device())?;
-        let a_t = (a0.broadcast_mul(&t_tensor.affine(-1.0, 1.0)?)? + a1.broadcast_mul(&t_tensor)?)?;
-        let target = (&a1 - &a0)?;
-        let a_t_rows: Vec<[f32; 9]> =
-            a_t.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
+        // Algorithm 1: a0 then t from the noise stream, a_t on the straight path, target a1 - a0.
+        let flow = flow_training_sample(&a1, &mut noise_rng, FlowTimeSampling::Uniform)?;
+        let t: Vec<f32> = flow.t.to_vec1()?;
+        let a_t_rows: Vec<[f32; ACTION_DIMS]> =
+            flow.a_t.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
         let refs: Vec<(&PreparedObservation, Augmentation)> = samples.iter().map(|(p, a)| (p.as_ref(), *a)).collect();
         let prefix = prefix_inputs(config, &refs)?;
         let own: Vec<usize> = (0..b).collect();
@@ -205,7 +122,7 @@ impl Trainer {
         let out = self.model.forward(&prefix, &suffix)?;
         let weights = LossWeights { cfm: config.flow.cfm_weight, open: config.flow.open_weight };
         let open_target = Tensor::from_vec(opens, b, &device())?;
-        let (total, cfm, bce) = flow_matching_loss(&out.velocity, &target, &out.open_logit, &open_target, &weights)?;
+        let (total, cfm, bce) = flow_matching_loss(&out.velocity, &flow.target_velocity, &out.open_logit, &open_target, &weights)?;
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;
         self.step = step;
@@ -231,16 +148,13 @@ impl Trainer {
         let store = CheckpointStore::open(run.join("checkpoints"))?;
         let config = serde_json::to_value(&self.config)
             .map_err(|e| PolicyError::Invalid(format!("cannot serialise the config: {e}")))?;
-        store.save(&config, &self.varmap, &self.ema, &self.optimizer, &self.trainer_state(last_loss))
+        save_checkpoint(&store, &config, &self.varmap, &self.ema, &self.optimizer, &self.trainer_state(last_loss))
     }
 
     /// Resumes from the latest checkpoint of a run (its stored config wins).
     pub fn resume(run: &Path) -> Result<Self> {
         let store = CheckpointStore::open(run.join("checkpoints"))?;
-        let dir = store.latest()?.ok_or_else(|| PolicyError::File {
-            path: run.join("checkpoints"),
-            message: "no checkpoint to resume from: start the run without --resume".into(),
-        })?;
+        let dir = store.latest()?.ok_or_else(|| PolicyError::NoCheckpoint { run: run.to_path_buf() })?;
         let config = read_checkpoint_config(&dir)?;
         let mut trainer = Self::new(&config)?;
         let loaded = load_checkpoint(&dir, &trainer.varmap, &mut trainer.ema, &mut trainer.optimizer)?;
@@ -248,17 +162,6 @@ impl Trainer {
         trainer.elapsed_seconds = loaded.trainer.elapsed_seconds;
         Ok(trainer)
     }
-}
-
-/// The config stored in a checkpoint directory.
-pub fn read_checkpoint_config(dir: &Path) -> Result<PolicyConfig> {
-    let path = dir.join("config.json");
-    let text = std::fs::read_to_string(&path)
-        .map_err(|e| PolicyError::File { path: path.clone(), message: format!("cannot read: {e}") })?;
-    let config: PolicyConfig = serde_json::from_str(&text)
-        .map_err(|e| PolicyError::File { path: path.clone(), message: format!("not a policy config: {e}") })?;
-    config.validate().map_err(|e| PolicyError::File { path, message: e.to_string() })?;
-    Ok(config)
 }
 
 /// Progress of a training run, for a progress bar.
@@ -284,11 +187,7 @@ pub fn train(
     } else {
         let config = config.ok_or_else(|| PolicyError::Invalid("a new run needs a config".into()))?;
         if CheckpointStore::open(run.join("checkpoints"))?.latest()?.is_some() {
-            return Err(PolicyError::File {
-                path: run.into(),
-                message: "this run already has checkpoints: pass --resume to continue it, or choose another --out"
-                    .into(),
-            });
+            return Err(PolicyError::RunHasCheckpoints { run: run.to_path_buf() });
         }
         Trainer::new(config)?
     };

@@ -25,7 +25,7 @@ use osqp::{CscMatrix, Problem, Settings, Status};
 use super::osc_config::OscConfig;
 use super::pose_error::pose_error;
 use super::trajectory::JointSetpoint;
-use crate::robot::{Dynamics, JointLimits, JointMatrix, JointVector, TaskKinematics};
+use crate::robot::{Dynamics, Jacobian, JointLimits, JointMatrix, JointVector, TaskKinematics};
 
 const N: usize = 7;
 /// Variables: q̈ (7) and the slack of the acceleration rows (7).
@@ -90,7 +90,6 @@ pub struct OscOutput {
 #[error("cannot set up the OSC's QP: {0}")]
 pub struct OscSetupError(String);
 
-/// The controller and its solver state.
 /// The arm's joint friction as the controller models it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct JointFriction {
@@ -109,6 +108,7 @@ impl JointFriction {
     }
 }
 
+/// The controller and its solver state.
 pub struct Osc {
     config: OscConfig,
     limits: JointLimits,
@@ -207,16 +207,41 @@ impl Osc {
         reference: &TaskReference,
     ) -> OscOutput {
         self.stats.ticks += 1;
-        let c = &self.config;
         let (tau_lo, tau_hi) = self.torque_bounds();
         let error = pose_error(&reference.pose, &dynamics.tcp);
         if !(q.iter().chain(dq.iter()).all(|v| v.is_finite()) && error.iter().all(|v| v.is_finite())) {
             return self.fallback(dq, &tau_lo, &tau_hi, error);
         }
         let jac = &dynamics.jacobian;
+        self.integrate_error(&error, reference);
+        let a_des = self.task_acceleration(jac, dq, &error, reference);
+        let b = a_des - dynamics.jdot_qdot;
+        let Some((posture, null_sq)) = self.nullspace_posture(jac, q, dq, reference) else {
+            return self.fallback(dq, &tau_lo, &tau_hi, error);
+        };
+        let (hessian, gradient) = self.task_cost(jac, b, posture, null_sq);
+        self.compensate_friction(q, dq, reference);
+        let offset = dynamics.coriolis + self.friction_torque;
+        let mass = &dynamics.mass;
+        self.write_bounds(q, dq, &tau_lo, &tau_hi, &offset);
+        let Some(ddq) = self.solve_qp(q, &hessian, &gradient, mass) else {
+            return self.fallback(dq, &tau_lo, &tau_hi, error);
+        };
+        let tau = mass * ddq + offset;
+        if !tau.iter().all(|v| v.is_finite()) {
+            return self.fallback(dq, &tau_lo, &tau_hi, error);
+        }
+        // OSQP meets its bounds to its tolerance; the clamp makes the limits exact.
+        let tau = tau.zip_zip_map(&tau_lo, &tau_hi, |t, lo, hi| t.clamp(lo, hi));
+        self.tau_prev = tau;
+        OscOutput { tau, error, fallback: false }
+    }
 
-        // Integral, only near a reference at rest (conditional integration: while the reference
-        // moves, or in contact that holds the TCP off, it would wind up), bounded.
+    /// The integral term ∫e: integrated only near a reference at rest (conditional integration:
+    /// while the reference moves, or in contact that holds the TCP off, it would wind up), and
+    /// bounded per part (position, orientation) by the gains' integral limits.
+    fn integrate_error(&mut self, error: &Vector6<f64>, reference: &TaskReference) {
+        let c = &self.config;
         let at_rest = reference.posture.dq.norm() < 1e-6;
         for (part, gains) in [(0usize, &c.position), (3usize, &c.orientation)] {
             let e = error.fixed_rows::<3>(part).into_owned();
@@ -230,6 +255,18 @@ impl Osc {
             }
             self.integral.fixed_rows_mut::<3>(part).copy_from(&sum);
         }
+    }
+
+    /// Task-space feedback: the desired TCP acceleration a_des = a_ref + Kd (v_des - v) + Ki ∫e
+    /// from the pose error, with the approach speed and the feedback's acceleration bounded.
+    fn task_acceleration(
+        &self,
+        jac: &Jacobian,
+        dq: &JointVector,
+        error: &Vector6<f64>,
+        reference: &TaskReference,
+    ) -> Vector6<f64> {
+        let c = &self.config;
         let gains6 = |f: fn(&super::osc_config::AxisGains) -> Vector3<f64>| -> Vector6<f64> {
             let (p, o) = (f(&c.position), f(&c.orientation));
             Vector6::new(p.x, p.y, p.z, o.x, o.y, o.z)
@@ -239,7 +276,7 @@ impl Osc {
         let ki = gains6(|g| g.integral);
         // PD with the approach speed bounded: v_des = v_ref + sat(Kp/Kd e); a_des = a_ref +
         // Kd (v_des - v) + Ki ∫e (the same as a_ref + Kp e + Kd ė while unsaturated).
-        let mut correction = kp.zip_map(&kd, |p, d| if d > 0.0 { p / d } else { 0.0 }).component_mul(&error);
+        let mut correction = kp.zip_map(&kd, |p, d| if d > 0.0 { p / d } else { 0.0 }).component_mul(error);
         for (part, limit) in [(0usize, c.position.max_speed), (3usize, c.orientation.max_speed)] {
             let n = correction.fixed_rows::<3>(part).norm();
             if n > limit {
@@ -257,21 +294,40 @@ impl Osc {
                 feedback.fixed_rows_mut::<3>(part).scale_mut(limit / n);
             }
         }
-        let a_des = reference.acceleration + feedback;
-        let b = a_des - dynamics.jdot_qdot;
+        reference.acceleration + feedback
+    }
 
-        // Posture in the nullspace.
+    /// Posture in the nullspace: the PD pull q̈_posture to the reference joint posture and NᵀN,
+    /// with N = I - J⁺J (J⁺ through a damped JJᵀ). None if JJᵀ has no Cholesky factor.
+    fn nullspace_posture(
+        &self,
+        jac: &Jacobian,
+        q: &JointVector,
+        dq: &JointVector,
+        reference: &TaskReference,
+    ) -> Option<(JointVector, JointMatrix)> {
+        let c = &self.config;
         let kn = c.nullspace_stiffness;
         let dn = 2.0 * c.nullspace_damping_ratio * kn.sqrt();
         let posture = reference.posture.ddq + (reference.posture.q - q) * kn + (reference.posture.dq - dq) * dn;
         let jjt = jac * jac.transpose() + Matrix6::identity() * 1e-6;
-        let pinv: SMatrix<f64, 7, 6> = match jjt.cholesky() {
-            Some(ch) => jac.transpose() * ch.inverse(),
-            None => return self.fallback(dq, &tau_lo, &tau_hi, error),
-        };
+        let ch = jjt.cholesky()?;
+        let pinv: SMatrix<f64, 7, 6> = jac.transpose() * ch.inverse();
         let null = JointMatrix::identity() - pinv * jac;
         let null_sq = null.transpose() * null;
+        Some((posture, null_sq))
+    }
 
+    /// The QP's cost in q̈ (as robosuite's `opspace_matrices()`): the Hessian
+    /// JᵀWJ + w_n NᵀN + eps I and the gradient -(JᵀW b + w_n NᵀN q̈_posture), b = a_des - J̇q̇.
+    fn task_cost(
+        &self,
+        jac: &Jacobian,
+        b: Vector6<f64>,
+        posture: JointVector,
+        null_sq: JointMatrix,
+    ) -> (JointMatrix, JointVector) {
+        let c = &self.config;
         let w = Vector6::new(
             c.position_weight,
             c.position_weight,
@@ -283,9 +339,13 @@ impl Osc {
         let jtw = jac.transpose() * Matrix6::from_diagonal(&w);
         let hessian = jtw * jac + null_sq * c.posture_weight + JointMatrix::identity() * c.regularization;
         let gradient = -(jtw * b + null_sq * posture * c.posture_weight);
+        (hessian, gradient)
+    }
 
-        // Friction compensation (model-based): dry friction toward where the posture should
-        // go, viscous on the measured velocity.
+    /// Friction compensation (model-based): dry friction toward where the posture should go,
+    /// viscous on the measured velocity. Updates `friction_torque`, ramped toward it.
+    fn compensate_friction(&mut self, q: &JointVector, dq: &JointVector, reference: &TaskReference) {
+        let c = &self.config;
         let toward = reference.posture.dq + (reference.posture.q - q) * c.friction_direction_gain;
         let target = (self.friction.coulomb.component_mul(&toward.map(|v| (v / c.friction_smoothing).tanh()))
             + self.friction.viscous.component_mul(dq))
@@ -295,34 +355,58 @@ impl Osc {
         let ramp = self.limits.torque_rate * self.dt * FRICTION_RAMP;
         self.friction_torque =
             self.friction_torque.zip_zip_map(&target, &ramp, |prev, t, r| t.clamp(prev - r, prev + r));
-        let offset = dynamics.coriolis + self.friction_torque;
+    }
 
-        // Bounds: torque rows (on M q̈ = tau - C q̇ - friction) and acceleration rows.
-        let mass = &dynamics.mass;
+    /// Bounds of the QP's rows: torque rows (on M q̈ = tau - C q̇ - friction, `offset` being
+    /// C q̇ + friction) and acceleration rows.
+    fn write_bounds(
+        &mut self,
+        q: &JointVector,
+        dq: &JointVector,
+        tau_lo: &JointVector,
+        tau_hi: &JointVector,
+        offset: &JointVector,
+    ) {
         let ddq_bounds = self.acceleration_bounds(q, dq);
         for i in 0..N {
             self.lower[i] = tau_lo[i] - offset[i];
             self.upper[i] = tau_hi[i] - offset[i];
             self.lower[N + i] = ddq_bounds.0[i];
             self.upper[N + i] = ddq_bounds.1[i];
+        }
+    }
+
+    /// The QP update and solve: the linear cost, the slack weights, P and A written in place
+    /// (bounds from [`Self::write_bounds`]), then OSQP warm-started. The joint accelerations,
+    /// or None if OSQP did not solve (counted by cause in the stats; the caller falls back to
+    /// the damping torque).
+    fn solve_qp(
+        &mut self,
+        q: &JointVector,
+        hessian: &JointMatrix,
+        gradient: &JointVector,
+        mass: &JointMatrix,
+    ) -> Option<JointVector> {
+        for i in 0..N {
             self.lin[i] = gradient[i];
         }
         // The slack of a joint's limit row stiffens as the joint nears a position limit, so a
         // task pushed by a contact cannot drive a joint into its limit.
+        let c = &self.config;
         let l = &self.limits;
         let slack = JointVector::from_fn(|i, _| {
             let d = (q[i] - l.position_min[i]).min(l.position_max[i] - q[i]).max(0.01);
             c.slack_weight * (1.0 + (LIMIT_BAND / d).powi(2))
         });
-        write_upper(self.p.data.to_mut(), &hessian, &slack);
+        write_upper(self.p.data.to_mut(), hessian, &slack);
         write_constraints(self.a.data.to_mut(), mass);
         self.problem.update_P(&self.p);
         self.problem.update_A(&self.a);
         self.problem.update_lin_cost(&self.lin);
         self.problem.update_bounds(&self.lower, &self.upper);
 
-        let ddq = match self.problem.solve() {
-            Status::Solved(s) | Status::SolvedInaccurate(s) => JointVector::from_column_slice(&s.x()[..N]),
+        match self.problem.solve() {
+            Status::Solved(s) | Status::SolvedInaccurate(s) => Some(JointVector::from_column_slice(&s.x()[..N])),
             status => {
                 let counter = match status {
                     Status::PrimalInfeasible(_) | Status::PrimalInfeasibleInaccurate(_) => &mut self.stats.infeasible,
@@ -331,17 +415,9 @@ impl Osc {
                     _ => &mut self.stats.other,
                 };
                 *counter += 1;
-                return self.fallback(dq, &tau_lo, &tau_hi, error);
+                None
             }
-        };
-        let tau = mass * ddq + offset;
-        if !tau.iter().all(|v| v.is_finite()) {
-            return self.fallback(dq, &tau_lo, &tau_hi, error);
         }
-        // OSQP meets its bounds to its tolerance; the clamp makes the limits exact.
-        let tau = tau.zip_zip_map(&tau_lo, &tau_hi, |t, lo, hi| t.clamp(lo, hi));
-        self.tau_prev = tau;
-        OscOutput { tau, error, fallback: false }
     }
 
     /// The damping torque within this tick's limits, for ticks where no model is available

@@ -2,48 +2,20 @@
 //! a robot backend at 1 kHz. Joint goals are solved before the control loop (each seeded from
 //! the previous goal), so the tick never waits for IK. Per keyframe: move, settle to tolerance,
 //! then open or close the gripper. Every tick is checked against the arm's limits and can be
-//! logged (t, q, dq, tau, TCP pose, reference) for CSV.
+//! logged (t, q, dq, tau, TCP pose, reference) for CSV. The keyframe format is in `keyframe`,
+//! the limit monitor and log rows in `monitor`, the straight-line waypoints in `waypoints`.
 use nalgebra::{Isometry3, Vector6};
-use serde::{Deserialize, Serialize};
+use serde::Serialize;
 
 use super::backend::{BackendError, Command, Cycle, RobotBackend, RobotState};
 use super::controller::ArmController;
 use super::gripper::{GraspState, Gripper};
-use super::ik::{IkError, InverseKinematics, target_pose};
+use super::ik::{InverseKinematics, target_pose};
+use super::keyframe::Keyframe;
+use super::monitor::{LimitMonitor, LogRow, pose7};
 use super::pose_error::pose_error;
+use super::waypoints::{WAYPOINT_SWITCH, straight_line_goals};
 use crate::robot::{JointLimits, JointVector};
-
-/// Straight-line motions get a joint goal every this many metres or radians.
-const WAYPOINT_SPACING: f64 = 0.03;
-const WAYPOINT_ANGLE: f64 = 0.1;
-/// Switch to the next waypoint when the joint reference is this close to the current one (rad).
-const WAYPOINT_SWITCH: f64 = 0.03;
-
-/// A keyframe: the TCP pose in the robot base frame (`panda_link0`, metres, quaternion
-/// [w, x, y, z]) and whether the gripper is open once the pose is reached.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct Keyframe {
-    pub position: [f64; 3],
-    pub quat_wxyz: [f64; 4],
-    pub gripper_open: bool,
-}
-
-impl Keyframe {
-    /// A keyframe at a pose.
-    pub fn at(pose: &Isometry3<f64>, gripper_open: bool) -> Self {
-        let t = pose.translation.vector;
-        let q = pose.rotation.quaternion();
-        Self { position: [t.x, t.y, t.z], quat_wxyz: [q.w, q.i, q.j, q.k], gripper_open }
-    }
-}
-
-/// The keyframes file: `{"keyframes": [...]}`.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct KeyframeFile {
-    pub keyframes: Vec<Keyframe>,
-}
 
 /// How one keyframe went.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -75,86 +47,6 @@ pub struct RunReport {
     pub qp_fallbacks: u64,
     pub ticks: u64,
     pub sim_time_s: f64,
-}
-
-/// One tick of the log.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LogRow {
-    pub t: f64,
-    pub q: JointVector,
-    pub dq: JointVector,
-    pub tau: JointVector,
-    /// Measured TCP pose: x, y, z, qw, qx, qy, qz (base frame).
-    pub tcp: [f64; 7],
-    /// Reference TCP pose, same layout.
-    pub reference: [f64; 7],
-    pub q_ref: JointVector,
-}
-
-impl LogRow {
-    pub const CSV_HEADER: &'static str = "t,q1,q2,q3,q4,q5,q6,q7,dq1,dq2,dq3,dq4,dq5,dq6,dq7,tau1,tau2,tau3,tau4,tau5,tau6,tau7,\
-x,y,z,qw,qx,qy,qz,ref_x,ref_y,ref_z,ref_qw,ref_qx,ref_qy,ref_qz,q_ref1,q_ref2,q_ref3,q_ref4,q_ref5,q_ref6,q_ref7";
-
-    pub fn csv_line(&self, out: &mut String) {
-        use std::fmt::Write;
-        let _ = write!(out, "{:.4}", self.t);
-        for v in
-            self.q.iter().chain(&self.dq).chain(&self.tau).chain(&self.tcp).chain(&self.reference).chain(&self.q_ref)
-        {
-            let _ = write!(out, ",{v:.6}");
-        }
-        out.push('\n');
-    }
-}
-
-fn pose7(p: &Isometry3<f64>) -> [f64; 7] {
-    let t = p.translation.vector;
-    let q = p.rotation.quaternion();
-    [t.x, t.y, t.z, q.w, q.i, q.j, q.k]
-}
-
-/// Watches every tick for limit violations and keeps the worst ratios.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct LimitMonitor {
-    limits: JointLimits,
-    dt: f64,
-    previous_tau: Option<JointVector>,
-    pub violations: u64,
-    pub max_torque_ratio: f64,
-    pub max_torque_rate_ratio: f64,
-    pub max_velocity_ratio: f64,
-}
-
-impl LimitMonitor {
-    pub fn new(limits: JointLimits, dt: f64) -> Self {
-        Self {
-            limits,
-            dt,
-            previous_tau: None,
-            violations: 0,
-            max_torque_ratio: 0.0,
-            max_torque_rate_ratio: 0.0,
-            max_velocity_ratio: 0.0,
-        }
-    }
-
-    /// Checks the state and the command of one tick.
-    pub fn check(&mut self, state: &RobotState, tau: &JointVector) {
-        let l = &self.limits;
-        let mut violated = false;
-        for i in 0..7 {
-            let torque = tau[i].abs() / l.torque[i];
-            let velocity = state.dq[i].abs() / l.velocity[i];
-            let rate = self.previous_tau.map_or(0.0, |p| (tau[i] - p[i]).abs() / (l.torque_rate[i] * self.dt));
-            self.max_torque_ratio = self.max_torque_ratio.max(torque);
-            self.max_velocity_ratio = self.max_velocity_ratio.max(velocity);
-            self.max_torque_rate_ratio = self.max_torque_rate_ratio.max(rate);
-            let outside = state.q[i] < l.position_min[i] || state.q[i] > l.position_max[i];
-            violated |= torque > 1.0 + 1e-9 || rate > 1.0 + 1e-9 || velocity > 1.0 || outside;
-        }
-        self.violations += u64::from(violated);
-        self.previous_tau = Some(*tau);
-    }
 }
 
 /// Executes keyframes on a backend.
@@ -252,7 +144,7 @@ impl Runner {
             let ik_start = std::time::Instant::now();
             let from = self.controller.kinematics_mut().tcp(&seed).unwrap_or_else(|_| Isometry3::identity());
             let goal = target_pose(keyframe.position, keyframe.quat_wxyz).and_then(|target| {
-                let goals = self.straight_line_goals(&from, &target, &seed)?;
+                let goals = straight_line_goals(&self.ik, self.controller.kinematics_mut(), &from, &target, &seed)?;
                 Ok((target, goals))
             });
             let ik_ms = ik_start.elapsed().as_secs_f64() * 1e3;
@@ -342,41 +234,6 @@ impl Runner {
 
     /// Tracks the trajectory to its end, then waits until the TCP is within tolerance of
     /// `target` and still, or the settle timeout passes. Returns the final pose error.
-    /// Joint goals along the straight line (and slerp) from `from` to `target`, one every
-    /// 3 cm / 0.1 rad, each solved by IK seeded with the previous one, so that the TCP moves
-    /// along a line near objects instead of along a joint-space curve. If a point of the line
-    /// has no IK solution the move goes straight to the target in joint space.
-    fn straight_line_goals(
-        &mut self,
-        from: &Isometry3<f64>,
-        target: &Isometry3<f64>,
-        seed: &JointVector,
-    ) -> Result<Vec<JointVector>, IkError> {
-        let distance = (target.translation.vector - from.translation.vector).norm();
-        let angle = from.rotation.angle_to(&target.rotation);
-        let steps = ((distance / WAYPOINT_SPACING).max(angle / WAYPOINT_ANGLE).ceil() as usize).clamp(1, 100);
-        let mut goals = Vec::with_capacity(steps);
-        let mut q = *seed;
-        for i in 1..=steps {
-            let s = i as f64 / steps as f64;
-            let pose = Isometry3::from_parts(
-                nalgebra::Translation3::from(from.translation.vector.lerp(&target.translation.vector, s)),
-                from.rotation.slerp(&target.rotation, s),
-            );
-            match self.ik.solve_near(self.controller.kinematics_mut(), &pose, &q, 0.5) {
-                Ok(solution) => {
-                    q = solution.q;
-                    goals.push(q);
-                }
-                Err(_) => {
-                    let direct = self.ik.solve(self.controller.kinematics_mut(), target, seed)?;
-                    return Ok(vec![direct.q]);
-                }
-            }
-        }
-        Ok(goals)
-    }
-
     fn move_and_settle<B: RobotBackend>(
         &mut self,
         backend: &mut B,

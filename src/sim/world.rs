@@ -1,16 +1,19 @@
 //! `World`: one loaded scene and its state. Resets, steps at the model's timestep (1 ms in
 //! flowram's scenes), reads the arm state, applies joint torques and the gripper command, and
-//! reads and sets object poses. No other module calls MuJoCo directly.
+//! reads and sets object poses. Nothing outside `sim` calls MuJoCo directly. Two more
+//! `impl World` blocks sit beside this one: the video recorder (`recorder`) and the arm's
+//! export for the controller's Pinocchio model (`arm_export`).
 use std::path::{Path, PathBuf};
 
 use mujoco_rs::prelude::*;
 use mujoco_rs::wrappers::mj_model::MjtObjBase;
-use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
+use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
 
 use super::SimError;
+use super::recorder::Recorder;
 use super::scene::{self, ARM_JOINTS, ARM_MOTORS, BASE_BODY, FINGER_JOINTS, GRIPPER_ACTUATOR, TCP_SITE};
 use crate::deps::Deps;
-use crate::robot::{ArmDescription, BodyInertia, JointVector, LinkDescription};
+use crate::robot::JointVector;
 
 /// What a torque-controlled arm reports every tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -29,58 +32,25 @@ pub struct ArmState {
     pub gripper_width: f64,
 }
 
-/// MuJoCo's view of the arm's kinematics and dynamics (see [`World::arm_dynamics_reference`]).
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ArmDynamicsReference {
-    pub tcp_in_base: Isometry3<f64>,
-    /// 6x7, linear rows then angular, base-frame axes.
-    pub jacobian: crate::robot::Jacobian,
-    /// The arm's 7x7 block of MuJoCo's joint-space inertia.
-    pub mass: crate::robot::JointMatrix,
-    /// Coriolis, centrifugal and gravity torques (`qfrc_bias`).
-    pub bias: JointVector,
-    /// The gravity compensation MuJoCo applies (`qfrc_gravcomp`; bodies have gravcomp = 1).
-    pub gravity_compensation: JointVector,
-}
-
 /// MuJoCo indices of the arm, resolved once at load.
 #[derive(Debug, Clone)]
-struct ArmIndex {
+pub(super) struct ArmIndex {
     qpos: [usize; 7],
-    dof: [usize; 7],
+    pub(super) dof: [usize; 7],
     motor: [usize; 7],
     finger_qpos: [usize; 2],
     finger_dof: [usize; 2],
     gripper: usize,
-    tcp_site: usize,
-    base_body: usize,
+    pub(super) tcp_site: usize,
+    pub(super) base_body: usize,
 }
 
 /// A loaded scene with the Panda in it.
 pub struct World {
     scene_path: PathBuf,
-    data: MjData<Box<MjModel>>,
-    arm: ArmIndex,
-    recorder: Option<Recorder>,
-}
-
-/// Frames of one camera captured while the world steps (for videos of episodes).
-struct Recorder {
-    rig: super::CameraRig,
-    camera: usize,
-    period: f64,
-    next: f64,
-    frames: Vec<Vec<u8>>,
-    error: Option<SimError>,
-}
-
-/// A recorded video: RGB frames (row 0 at the top) at a fixed rate.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Video {
-    pub width: usize,
-    pub height: usize,
-    pub fps: f64,
-    pub frames: Vec<Vec<u8>>,
+    pub(super) data: MjData<Box<MjModel>>,
+    pub(super) arm: ArmIndex,
+    pub(super) recorder: Option<Recorder>,
 }
 
 impl std::fmt::Debug for World {
@@ -195,48 +165,7 @@ impl World {
     /// Advances the physics by one timestep with the current torques and gripper command.
     pub fn step(&mut self) {
         self.data.step();
-        if let Some(r) = self.recorder.as_mut()
-            && r.error.is_none()
-            && self.data.ffi().time >= r.next
-        {
-            r.next += r.period;
-            match r.rig.draw(&mut self.data, r.camera) {
-                Ok(()) => r.frames.push(r.rig.last_rgb().to_vec()),
-                Err(e) => r.error = Some(e),
-            }
-        }
-    }
-
-    /// Starts capturing `camera` at `fps` frames per second of simulated time while stepping
-    /// (square images of `size` pixels). Rendering costs a few ms per frame.
-    pub fn start_recording(&mut self, camera: &str, size: usize, fps: f64) -> Result<(), SimError> {
-        if !(fps > 0.0 && fps <= 1000.0) {
-            return Err(SimError::InvalidInput {
-                what: "video frame rate",
-                detail: format!("{fps} fps; expected (0, 1000]"),
-            });
-        }
-        let rig = super::CameraRig::new(self, size, super::Visuals::Full)?;
-        let index = rig.camera_index(camera)?;
-        self.recorder = Some(Recorder {
-            rig,
-            camera: index,
-            period: 1.0 / fps,
-            next: self.time(),
-            frames: Vec::new(),
-            error: None,
-        });
-        Ok(())
-    }
-
-    /// Stops capturing and returns the video.
-    pub fn stop_recording(&mut self) -> Result<Option<Video>, SimError> {
-        let Some(r) = self.recorder.take() else { return Ok(None) };
-        if let Some(e) = r.error {
-            return Err(e);
-        }
-        let size = r.rig.size();
-        Ok(Some(Video { width: size, height: size, fps: 1.0 / r.period, frames: r.frames }))
+        self.capture_frame();
     }
 
     /// Joint torques (Nm) for the next steps. The motors clamp them to the Panda's rated
@@ -327,105 +256,6 @@ impl World {
         Ok(())
     }
 
-    /// The arm as the simulator models it (link placements, joint axes, inertias, armature, TCP,
-    /// gravity), in the base frame, for building the controller's kinematic model. The hand and
-    /// fingers are lumped into link 7 at their current opening.
-    pub fn arm_description(&self) -> Result<ArmDescription, SimError> {
-        let m = self.data.model();
-        let mismatch = |detail: String| SimError::InvalidInput { what: "arm model", detail };
-        let inertia_of = |b: usize| {
-            let rot = quat_wxyz(&m.body_iquat()[b]).to_rotation_matrix();
-            let d = m.body_inertia()[b];
-            BodyInertia {
-                mass: m.body_mass()[b],
-                com: Vector3::from(m.body_ipos()[b]),
-                inertia: rot * Matrix3::from_diagonal(&Vector3::from(d)) * rot.transpose(),
-            }
-        };
-        let mut bodies = [0usize; 7];
-        let mut links = [LinkDescription {
-            placement: Isometry3::identity(),
-            axis: Vector3::z(),
-            inertia: BodyInertia::ZERO,
-            armature: 0.0,
-            friction: 0.0,
-            damping: 0.0,
-        }; 7];
-        let mut parent = self.arm.base_body;
-        for (i, name) in ARM_JOINTS.iter().enumerate() {
-            let j = m.name_to_id(MjtObjBase::mjOBJ_JOINT, name).ok_or_else(|| mismatch(format!("no joint {name}")))?;
-            let b = m.jnt_bodyid()[j] as usize;
-            if m.body_parentid()[b] as usize != parent {
-                return Err(mismatch(format!("{name} is not on a child of the previous link")));
-            }
-            if m.jnt_type()[j] != MjtJoint::mjJNT_HINGE || Vector3::from(m.jnt_pos()[j]).norm() > 1e-12 {
-                return Err(mismatch(format!("{name} must be a hinge at its body's origin")));
-            }
-            let p = m.body_pos()[b];
-            links[i] = LinkDescription {
-                placement: Isometry3::from_parts(Translation3::new(p[0], p[1], p[2]), quat_wxyz(&m.body_quat()[b])),
-                axis: Vector3::from(m.jnt_axis()[j]).normalize(),
-                inertia: inertia_of(b),
-                armature: m.dof_armature()[m.jnt_dofadr()[j] as usize],
-                friction: m.dof_frictionloss()[m.jnt_dofadr()[j] as usize],
-                damping: m.dof_damping()[m.jnt_dofadr()[j] as usize],
-            };
-            bodies[i] = b;
-            parent = b;
-        }
-        // Everything below link 7 (flange, hand, fingers) rides on link 7.
-        let last = bodies[6];
-        let world_to_last = self.body_frame(last).inverse();
-        for b in 0..m.ffi().nbody as usize {
-            let mut a = m.body_parentid()[b] as usize;
-            while a != 0 && a != last {
-                a = m.body_parentid()[a] as usize;
-            }
-            if a == last && b != last {
-                let in_last = world_to_last * self.body_frame(b);
-                links[6].inertia = links[6].inertia.combined(&inertia_of(b).transformed(&in_last));
-            }
-        }
-        let base = self.base_pose();
-        let g = Vector3::from(m.ffi().opt.gravity);
-        Ok(ArmDescription { links, tcp: world_to_last * self.tcp_pose(), gravity: base.rotation.inverse() * g })
-    }
-
-    fn body_frame(&self, b: usize) -> Isometry3<f64> {
-        pose_from(&self.data.xpos()[b], &self.data.xmat()[b])
-    }
-
-    /// MuJoCo's own mass matrix, Jacobian of the TCP and bias forces of the arm at the current
-    /// state (base frame), for checking the controller's model against the simulator's.
-    pub fn arm_dynamics_reference(&mut self) -> ArmDynamicsReference {
-        self.data.forward();
-        let nv = self.model().ffi().nv as usize;
-        let mut full = vec![0.0; nv * nv];
-        self.data.full_m(&mut full).expect("buffer sized nv*nv");
-        let (jacp, jacr) = self.data.jac_site(true, true, self.arm.tcp_site);
-        let r_base = self.base_pose().rotation.inverse().to_rotation_matrix();
-        let mut jacobian = crate::robot::Jacobian::zeros();
-        let mut mass = crate::robot::JointMatrix::zeros();
-        for (c, &dc) in self.arm.dof.iter().enumerate() {
-            let lin = r_base * Vector3::new(jacp[dc], jacp[nv + dc], jacp[2 * nv + dc]);
-            let ang = r_base * Vector3::new(jacr[dc], jacr[nv + dc], jacr[2 * nv + dc]);
-            jacobian.fixed_view_mut::<3, 1>(0, c).copy_from(&lin);
-            jacobian.fixed_view_mut::<3, 1>(3, c).copy_from(&ang);
-            for (r, &dr) in self.arm.dof.iter().enumerate() {
-                mass[(r, c)] = full[dr * nv + dc];
-            }
-        }
-        let bias = self.data.qfrc_bias();
-        let gravcomp = self.data.qfrc_gravcomp();
-        ArmDynamicsReference {
-            tcp_in_base: self.base_pose().inverse() * self.tcp_pose(),
-            jacobian,
-            mass,
-            bias: JointVector::from_fn(|i, _| bias[self.arm.dof[i]]),
-            gravity_compensation: JointVector::from_fn(|i, _| gravcomp[self.arm.dof[i]]),
-        }
-    }
-
     /// Colour of a geom (RGBA in [0, 1]), e.g. for a task variation's object colours.
     pub fn set_geom_rgba(&mut self, name: &str, rgba: [f32; 4]) -> Result<(), SimError> {
         let id = self.id_of(MjtObjBase::mjOBJ_GEOM, "geom", name, self.model().ffi().ngeom as usize)?;
@@ -461,14 +291,6 @@ impl World {
         self.data.qpos_mut()[qadr] = value;
         self.data.qvel_mut()[vadr] = 0.0;
         self.data.forward();
-        Ok(())
-    }
-
-    /// An external force (N, world frame) on a body's centre of mass, until changed.
-    pub fn apply_body_force(&mut self, name: &str, force: Vector3<f64>) -> Result<(), SimError> {
-        check_finite("force", force.as_slice())?;
-        let id = self.body_id(name)?;
-        self.data.xfrc_applied_mut()[id] = [force.x, force.y, force.z, 0.0, 0.0, 0.0];
         Ok(())
     }
 
@@ -553,11 +375,6 @@ impl ArmIndex {
 pub(crate) fn pose_from(pos: &[f64; 3], mat: &[f64; 9]) -> Isometry3<f64> {
     let rot = Rotation3::from_matrix_unchecked(Matrix3::from_row_slice(mat));
     Isometry3::from_parts(Translation3::new(pos[0], pos[1], pos[2]), UnitQuaternion::from_rotation_matrix(&rot))
-}
-
-/// A unit quaternion from MuJoCo's w, x, y, z order.
-fn quat_wxyz(q: &[f64; 4]) -> UnitQuaternion<f64> {
-    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[0], q[1], q[2], q[3]))
 }
 
 fn check_finite(what: &'static str, values: &[f64]) -> Result<(), SimError> {

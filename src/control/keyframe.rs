@@ -1,0 +1,31 @@
+//! The keyframe file format: a keyframe is a TCP pose in the robot base frame and the gripper
+//! state once the pose is reached; a keyframes file is the JSON `{"keyframes": [...]}` (serde,
+//! unknown fields refused), readable from Python as plain JSON.
+use nalgebra::Isometry3;
+use serde::{Deserialize, Serialize};
+
+/// A keyframe: the TCP pose in the robot base frame (`panda_link0`, metres, quaternion
+/// [w, x, y, z]) and whether the gripper is open once the pose is reached.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Keyframe {
+    pub position: [f64; 3],
+    pub quat_wxyz: [f64; 4],
+    pub gripper_open: bool,
+}
+
+impl Keyframe {
+    /// A keyframe at a pose.
+    pub fn at(pose: &Isometry3<f64>, gripper_open: bool) -> Self {
+        let t = pose.translation.vector;
+        let q = pose.rotation.quaternion();
+        Self { position: [t.x, t.y, t.z], quat_wxyz: [q.w, q.i, q.j, q.k], gripper_open }
+    }
+}
+
+/// The keyframes file: `{"keyframes": [...]}`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct KeyframeFile {
+    pub keyframes: Vec<Keyframe>,
+}

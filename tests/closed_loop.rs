@@ -2,7 +2,7 @@
 //! rendered observations (replaying the expert through it succeeds and stops at success), the
 //! conversion of rendered frames to the policy's observation (identical to the dataset path the
 //! policy was trained on), and FlowRAM itself acting through the real control stack.
-use flowram::control::runner::Keyframe;
+use flowram::control::keyframe::Keyframe;
 use flowram::deps::Deps;
 use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SamplingOptions};

@@ -3,7 +3,8 @@ mod common;
 
 use flowram::control::backend::RobotBackend;
 use flowram::control::osc_config::OscConfig;
-use flowram::control::runner::{Keyframe, Runner};
+use flowram::control::keyframe::Keyframe;
+use flowram::control::runner::Runner;
 use flowram::robot::JointLimits;
 use flowram::sim::World;
 

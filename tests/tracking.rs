@@ -3,7 +3,9 @@
 //! (checked on every logged tick, not only by the runner's own monitor).
 use flowram::control::backend::{Cycle, RobotBackend};
 use flowram::control::osc_config::OscConfig;
-use flowram::control::runner::{Keyframe, LogRow, Runner};
+use flowram::control::keyframe::Keyframe;
+use flowram::control::monitor::LogRow;
+use flowram::control::runner::Runner;
 use flowram::robot::JointLimits;
 use flowram::sim::World;
 use nalgebra::{Translation3, UnitQuaternion, Vector3};

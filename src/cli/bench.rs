@@ -193,7 +193,7 @@ fn render(args: RenderBenchArgs) -> anyhow::Result<()> {
 
 /// A deterministic tour around the home pose: translations of 10-20 cm and rotations up to
 /// 0.4 rad, returning home at the end.
-fn tour(home: &nalgebra::Isometry3<f64>, n: usize) -> Vec<flowram::control::runner::Keyframe> {
+fn tour(home: &nalgebra::Isometry3<f64>, n: usize) -> Vec<flowram::control::keyframe::Keyframe> {
     use nalgebra::{Translation3, UnitQuaternion, Vector3};
     let offsets = [
         (Vector3::new(0.12, 0.1, -0.05), Vector3::new(0.0, 0.0, 0.3)),
@@ -207,7 +207,7 @@ fn tour(home: &nalgebra::Isometry3<f64>, n: usize) -> Vec<flowram::control::runn
         .map(|i| {
             let (d, r) = if i + 1 == n { (Vector3::zeros(), Vector3::zeros()) } else { offsets[i % offsets.len()] };
             let pose = Translation3::from(d) * home * UnitQuaternion::from_scaled_axis(r);
-            flowram::control::runner::Keyframe::at(&pose, true)
+            flowram::control::keyframe::Keyframe::at(&pose, true)
         })
         .collect()
 }

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use clap::Args;
-use flowram::control::runner::KeyframeFile;
+use flowram::control::keyframe::KeyframeFile;
 use flowram::files::write_atomic;
 
 #[derive(Debug, Args)]

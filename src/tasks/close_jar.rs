@@ -15,7 +15,7 @@ use super::colors::{self, COLORS};
 use super::grasp::{pick_and_place, top_down};
 use super::layout::scatter;
 use super::{Task, TaskError, TaskState};
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
 const TABLE_Z: f64 = 0.75;

@@ -9,7 +9,8 @@ use rand::rngs::StdRng;
 use super::{Episode, Task, TaskError};
 use crate::control::backend::RobotBackend;
 use crate::control::osc_config::OscConfig;
-use crate::control::runner::{Keyframe, Runner};
+use crate::control::keyframe::Keyframe;
+use crate::control::runner::Runner;
 use crate::robot::{JointLimits, JointVector};
 use crate::sim::{CameraRig, RgbdFrame, World};
 

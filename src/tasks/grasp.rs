@@ -1,7 +1,7 @@
 //! Gripper orientations and keyframe helpers shared by the experts (world frame).
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion, Vector3};
 
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 
 /// The hand pointing down (TCP z = world -z), turned by `yaw` about the vertical; the fingers
 /// close along the TCP's y axis.

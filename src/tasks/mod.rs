@@ -20,7 +20,7 @@ use std::path::PathBuf;
 
 use rand::rngs::StdRng;
 
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 use crate::sim::{SimError, World};
 
 /// A task's per-episode state: what reset chose, and what happened so far.

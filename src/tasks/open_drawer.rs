@@ -15,7 +15,7 @@ use std::f64::consts::{FRAC_PI_2, PI};
 
 use super::grasp::{keyframe, symmetric_yaw, top_down};
 use super::{Task, TaskError, TaskState};
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
 const DRAWERS: [&str; 3] = ["left", "middle", "right"];

@@ -4,7 +4,7 @@ use std::time::Instant;
 
 use super::TaskError;
 use super::episode::{KeyframeObservation, KeyframePolicy};
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 use crate::policy::inference::{Policy, SamplingOptions};
 use crate::policy::scene::observation::{CameraView, Observation};
 

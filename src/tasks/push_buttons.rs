@@ -16,7 +16,7 @@ use super::colors::{self, COLORS};
 use super::grasp::{keyframe, top_down};
 use super::layout::{apart, scatter};
 use super::{Task, TaskError, TaskState};
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
 const BUTTONS: usize = 3;

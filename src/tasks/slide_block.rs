@@ -14,7 +14,7 @@ use rand::seq::SliceRandom;
 
 use super::grasp::{keyframe, symmetric_yaw, top_down};
 use super::{Task, TaskError, TaskState};
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
 const TARGETS: [(&str, [f32; 4]); 4] = [

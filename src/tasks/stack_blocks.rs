@@ -17,7 +17,7 @@ use super::colors::{self, COLORS};
 use super::grasp::{pick_and_place, symmetric_yaw, top_down};
 use super::layout::{apart, scatter};
 use super::{Task, TaskError, TaskState};
-use crate::control::runner::Keyframe;
+use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
 const TABLE_Z: f64 = 0.75;

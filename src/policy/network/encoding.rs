@@ -122,8 +122,6 @@ pub fn time_embedding(t: &Tensor, channels: usize) -> Result<Tensor> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
     use candle_core::Device;
 
     #[test]

@@ -91,8 +91,6 @@ pub fn project_to_pixel(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
 
     /// A 128x128 camera with fovy 60 deg looking down at a table plane z = 0.75 m from 1.6 m up,
     /// tilted; depth rendered analytically; a band of pixels sees nothing.

@@ -93,8 +93,6 @@ impl WorkspaceBounds {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use rand::{Rng, SeedableRng};
-    use rand_chacha::ChaCha8Rng;
 
     fn assert_close<const N: usize>(a: [f32; N], b: [f32; N], tol: f32, what: &str) {
         for i in 0..N {

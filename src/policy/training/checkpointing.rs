@@ -73,7 +73,7 @@ mod tests {
     use std::path::PathBuf;
     use candle_core::DType;
     use candle_nn::{Init, VarBuilder};
-    use rand::Rng;
+    use candle_core::{Device, Tensor};
 
     struct TempDir(PathBuf);
     impl TempDir {
@@ -381,7 +381,7 @@ mod tests {
             elapsed_seconds: 0.0,
             extra: serde_json::Value::Null,
         };
-        store.save(&serde_json::json!({}), &vm_b, &ema_b, &opt_b, &trainer).unwrap();
+        save_checkpoint(&store, &serde_json::json!({}), &vm_b, &ema_b, &opt_b, &trainer).unwrap();
         drop((policy_b, opt_b, ema_b, vm_b));
 
         // Fresh process: new (differently initialised) model, resume.

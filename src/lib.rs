@@ -7,5 +7,7 @@ pub mod deps;
 pub mod files;
 pub mod policy;
 pub mod robot;
+pub mod rollout;
 pub mod sim;
+pub mod stats;
 pub mod tasks;

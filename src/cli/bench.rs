@@ -4,6 +4,7 @@ use std::time::Instant;
 
 use clap::{Args, Subcommand};
 use flowram::sim::{CameraRig, JointVector, Visuals, World};
+use flowram::stats::median;
 use serde::Serialize;
 
 #[derive(Debug, Subcommand)]
@@ -15,11 +16,11 @@ pub enum BenchCommand {
     /// Per-tick compute time of the control stack over a long tracking run, and IK time.
     Control(ControlBenchArgs),
     /// FlowRAM latency from observation to keyframe (Table C grid) and training-step time.
-    Policy(super::policy::PolicyBenchArgs),
+    Policy(super::bench_policy::PolicyBenchArgs),
     /// Held-out keyframe errors of a trained policy against the training-mean baseline.
-    Heldout(super::policy::HeldOutArgs),
+    Heldout(super::bench_policy::HeldOutArgs),
     /// Closed-loop success rate of a trained policy on held-out seeds of tasks.
-    Success(super::episodes::SuccessBenchArgs),
+    Success(super::bench_policy::SuccessBenchArgs),
 }
 
 #[derive(Debug, Args)]
@@ -112,9 +113,9 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Sim(args) => sim(args),
         BenchCommand::Render(args) => render(args),
         BenchCommand::Control(args) => control(args),
-        BenchCommand::Policy(args) => super::policy::bench_cmd(args),
-        BenchCommand::Heldout(args) => super::policy::heldout_cmd(args),
-        BenchCommand::Success(args) => super::episodes::success_bench(args),
+        BenchCommand::Policy(args) => super::bench_policy::bench_cmd(args),
+        BenchCommand::Heldout(args) => super::bench_policy::heldout_cmd(args),
+        BenchCommand::Success(args) => super::bench_policy::success_cmd(args),
     }
 }
 
@@ -214,8 +215,8 @@ fn tour(home: &nalgebra::Isometry3<f64>, n: usize) -> Vec<flowram::control::keyf
 
 fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.keyframes > 0, "--keyframes must be at least 1");
-    let config = super::stack::load_config(args.config.as_deref())?;
-    let (mut world, mut runner) = super::stack::simulated_stack(&args.scene, config)?;
+    let config = flowram::rollout::stack::load_controller_config(args.config.as_deref())?;
+    let (mut world, mut runner) = flowram::rollout::stack::simulated_stack(&args.scene, config)?;
     let keyframes = tour(&world.arm_state().tcp_in_base, args.keyframes);
     runner.enable_timing(args.keyframes * 10_000);
     let start = Instant::now();
@@ -266,12 +267,4 @@ fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
         );
         Ok(())
     }
-}
-
-/// Median (mean of the middle two for an even count).
-pub(super) fn median(values: &[f64]) -> f64 {
-    let mut v = values.to_vec();
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
 }

@@ -4,17 +4,21 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Args, ValueEnum};
-use flowram::data::Dataset;
 use flowram::files::write_atomic;
-use flowram::policy::inference::SamplingOptions;
-use flowram::sim::{CameraRig, Visuals, image};
+use flowram::rollout::collection::{self, CollectOptions};
+use flowram::rollout::evaluation::EvaluationProgress;
+use flowram::rollout::episode::{Actor, run_episode};
+use flowram::rollout::learned::policy_episode;
+use flowram::sim::image;
 use flowram::tasks;
-use flowram::tasks::episode::{Actor, EpisodeResult, Observer, run_episode, run_policy_episode};
-use flowram::tasks::policy_actor::FlowRamActor;
 use serde::Serialize;
 
+use super::learned::LearnedArgs;
+use super::progress::TaskBar;
+
+/// Who chooses the keyframes of `flowram run`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
-pub enum Policy {
+pub enum ActorKind {
     /// The task's scripted expert.
     Expert,
     /// Nobody moves (the arm holds still for 5 s).
@@ -23,81 +27,13 @@ pub enum Policy {
     Flowram,
 }
 
-/// How a learned policy runs closed loop (`run --policy flowram`, `bench success`).
-#[derive(Debug, Args)]
-pub struct LearnedArgs {
-    /// Run folder (runs/NAME) or checkpoint folder of a trained policy.
-    #[arg(long)]
-    pub checkpoint: Option<PathBuf>,
-    /// Euler steps (default: the checkpoint's flow.sampling_steps).
-    #[arg(long)]
-    pub steps: Option<usize>,
-    /// Global geometric tokens at every step (the w/o-DRS ablation).
-    #[arg(long)]
-    pub no_drs: bool,
-    /// Stop after this many predicted keyframes if the task has not succeeded.
-    #[arg(long, default_value_t = 10)]
-    pub max_keyframes: usize,
-    /// Cameras the policy sees, in the training datasets' order.
-    #[arg(long, value_delimiter = ',', default_value = "front,left_shoulder,right_shoulder,wrist")]
-    pub cameras: Vec<String>,
-}
-
-/// A loaded learned policy, its cameras and its rig.
-pub struct Learned {
-    pub actor: FlowRamActor,
-    rig: CameraRig,
-    cameras: Vec<usize>,
-    max_keyframes: usize,
-}
-
-impl LearnedArgs {
-    /// Loads the checkpoint (`--checkpoint`), with the sampling options.
-    pub fn load_actor(&self) -> anyhow::Result<FlowRamActor> {
-        let checkpoint = self
-            .checkpoint
-            .as_ref()
-            .context("the learned policy needs --checkpoint runs/NAME (a run folder from `flowram train`)")?;
-        anyhow::ensure!(self.max_keyframes > 0, "--max-keyframes must be at least 1");
-        let policy = flowram::policy::inference::Policy::load(checkpoint, super::policy::text_encoder()?)?;
-        let options = SamplingOptions {
-            steps: self.steps.unwrap_or(policy.config().flow.sampling_steps),
-            samples: 1,
-            drs: !self.no_drs,
-            seed: 0,
-        };
-        Ok(FlowRamActor::new(policy, options))
-    }
-
-    /// `actor` with a camera rig for `world` at the checkpoint's image size.
-    pub fn with_rig(&self, actor: FlowRamActor, world: &flowram::sim::World) -> anyhow::Result<Learned> {
-        let rig = CameraRig::new(world, actor.policy.config().observation.image_size, Visuals::Full)?;
-        let cameras = self.cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
-        Ok(Learned { actor, rig, cameras, max_keyframes: self.max_keyframes })
-    }
-}
-
-impl Learned {
-    /// One closed-loop episode.
-    pub fn episode(
-        &mut self,
-        task: &dyn tasks::Task,
-        world: &mut flowram::sim::World,
-        variation: usize,
-        seed: u64,
-    ) -> anyhow::Result<EpisodeResult> {
-        let mut observer = Observer { rig: &mut self.rig, cameras: self.cameras.clone() };
-        Ok(run_policy_episode(task, world, variation, seed, &mut self.actor, &mut observer, self.max_keyframes)?)
-    }
-}
-
 #[derive(Debug, Args)]
 pub struct RunArgs {
     /// Task name: open_drawer, push_buttons, slide_block, close_jar, stack_blocks.
     #[arg(long)]
     task: String,
-    #[arg(long, value_enum, default_value_t = Policy::Expert)]
-    policy: Policy,
+    #[arg(long, value_enum, default_value_t = ActorKind::Expert)]
+    policy: ActorKind,
     #[command(flatten)]
     learned: LearnedArgs,
     #[arg(long, default_value_t = 0)]
@@ -136,16 +72,19 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     if args.video.is_some() {
         world.start_recording(&args.video_camera, 256, 10.0)?;
     }
-    if args.policy != Policy::Flowram && args.learned.checkpoint.is_some() {
+    if args.policy != ActorKind::Flowram && args.learned.checkpoint.is_some() {
         anyhow::bail!("--checkpoint is for --policy flowram (this run uses --policy {:?})", args.policy);
     }
     let start = Instant::now();
     let result = match args.policy {
-        Policy::Expert => run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Expert, None)?,
-        Policy::Idle => run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Idle { seconds: 5 }, None)?,
-        Policy::Flowram => {
-            let actor = args.learned.load_actor()?;
-            args.learned.with_rig(actor, &world)?.episode(task.as_ref(), &mut world, variation, args.seed)?
+        ActorKind::Expert => run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Expert, None)?,
+        ActorKind::Idle => {
+            run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Idle { seconds: 5 }, None)?
+        }
+        ActorKind::Flowram => {
+            let mut actor = args.learned.load_actor()?;
+            let learned = &args.learned;
+            policy_episode(&mut actor, task.as_ref(), &mut world, variation, args.seed, &learned.cameras, learned.max_keyframes)?
         }
     };
     let seconds = start.elapsed().as_secs_f64();
@@ -209,58 +148,19 @@ pub struct CollectArgs {
     json: bool,
 }
 
-#[derive(Serialize)]
-struct CollectReport {
-    task: String,
-    episodes: usize,
-    attempts: usize,
-    successes: usize,
-    keyframes_mean: f64,
-    seconds: f64,
-    episodes_per_minute: f64,
-}
-
 pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
     let task = tasks::by_name(&args.task)?;
-    let mut world = tasks::load_world(task.as_ref())?;
-    let mut rig = CameraRig::new(&world, args.size, Visuals::Full)?;
-    let cameras = args.cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
-    let mut writer = Dataset::create_or_open(&args.out, task.name(), &args.cameras, [args.size, args.size])?;
-    let max_attempts = args.max_attempts.unwrap_or(3 * args.episodes);
-    let bar = episode_bar(task.name(), args.episodes);
-    let start = Instant::now();
-    let (mut attempts, mut successes, mut keyframes) = (0usize, 0usize, 0usize);
-    while successes < args.episodes && attempts < max_attempts {
-        let seed = args.seed + attempts as u64;
-        attempts += 1;
-        let variation = seed as usize % task.variation_count();
-        let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
-        let result = run_episode(task.as_ref(), &mut world, variation, seed, Actor::Expert, Some(&mut observer))?;
-        if !result.success {
-            bar.println(format!(
-                "seed {seed}: expert failed ({} keyframes reached of {}), not saved",
-                result.reached, result.keyframes
-            ));
-            continue;
-        }
-        let episode = result.to_dataset_episode().context("the episode recorded no images")?;
-        writer.append(&episode)?;
-        successes += 1;
-        keyframes += result.keyframes;
-        bar.inc(1);
-    }
-    bar.finish_and_clear();
-    let seconds = start.elapsed().as_secs_f64();
-    let report = CollectReport {
-        task: task.name().into(),
-        episodes: writer.index().episodes.len(),
-        attempts,
-        successes,
-        keyframes_mean: if successes > 0 { keyframes as f64 / successes as f64 } else { 0.0 },
-        seconds,
-        episodes_per_minute: successes as f64 / seconds * 60.0,
+    let options = CollectOptions {
+        episodes: args.episodes,
+        seed: args.seed,
+        max_attempts: args.max_attempts.unwrap_or(3 * args.episodes),
+        cameras: args.cameras.clone(),
+        size: args.size,
     };
+    let mut bar = TaskBar::for_collection(task.name(), args.episodes);
+    let report = collection::collect(task.as_ref(), &args.out, &options, &mut bar)?;
+    bar.finished();
     if args.json {
         super::print_json(&report)?;
     } else {
@@ -276,104 +176,11 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
         );
     }
     anyhow::ensure!(
-        successes == args.episodes,
-        "collected only {successes} of {} episodes in {attempts} attempts",
-        args.episodes
+        report.successes == args.episodes,
+        "collected only {} of {} episodes in {} attempts",
+        report.successes,
+        args.episodes,
+        report.attempts
     );
     Ok(())
-}
-
-#[derive(Debug, Args)]
-pub struct SuccessBenchArgs {
-    /// Tasks, comma-separated.
-    #[arg(long, value_delimiter = ',', required = true)]
-    tasks: Vec<String>,
-    /// Episodes per task.
-    #[arg(long, default_value_t = 10)]
-    episodes: usize,
-    /// Seed of the first episode (episode i: seed + i, variation = seed modulo variations);
-    /// the default keeps clear of the seeds `flowram collect` starts from.
-    #[arg(long, default_value_t = 1000)]
-    seed: u64,
-    #[command(flatten)]
-    learned: LearnedArgs,
-    #[arg(long)]
-    json: bool,
-}
-
-#[derive(Serialize)]
-struct TaskSuccess {
-    task: String,
-    episodes: usize,
-    successes: usize,
-    success_rate: f64,
-    /// Mean predicted keyframes per episode.
-    keyframes: f64,
-    /// Fraction of predicted keyframes the controller reached (IK solvable, tracked to tolerance).
-    reached: f64,
-    inference_ms_median: f64,
-}
-
-/// `flowram bench success`: closed-loop success rate of a trained policy on held-out seeds.
-pub fn success_bench(args: SuccessBenchArgs) -> anyhow::Result<()> {
-    anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
-    let task_list = args.tasks.iter().map(|name| tasks::by_name(name)).collect::<Result<Vec<_>, _>>()?;
-    let mut actor = args.learned.load_actor()?;
-    let mut reports = Vec::new();
-    for task in task_list {
-        let mut world = tasks::load_world(task.as_ref())?;
-        actor.inference_ms.clear();
-        let mut learned = args.learned.with_rig(actor, &world)?;
-        let bar = episode_bar(task.name(), args.episodes);
-        let (mut successes, mut keyframes, mut reached) = (0usize, 0usize, 0usize);
-        for i in 0..args.episodes {
-            let seed = args.seed + i as u64;
-            let variation = seed as usize % task.variation_count();
-            let result = learned.episode(task.as_ref(), &mut world, variation, seed)?;
-            successes += usize::from(result.success);
-            keyframes += result.keyframes;
-            reached += result.reached;
-            bar.inc(1);
-        }
-        bar.finish_and_clear();
-        reports.push(TaskSuccess {
-            task: task.name().into(),
-            episodes: args.episodes,
-            successes,
-            success_rate: successes as f64 / args.episodes as f64,
-            keyframes: keyframes as f64 / args.episodes as f64,
-            reached: if keyframes > 0 { reached as f64 / keyframes as f64 } else { 0.0 },
-            inference_ms_median: super::bench::median(&learned.actor.inference_ms),
-        });
-        actor = learned.actor;
-    }
-    if args.json {
-        return super::print_json(&reports);
-    }
-    for r in &reports {
-        println!(
-            "{}: {}/{} successes ({:.0} %), {:.1} keyframes per episode, {:.0} % reached, inference {:.0} ms (median)",
-            r.task,
-            r.successes,
-            r.episodes,
-            100.0 * r.success_rate,
-            r.keyframes,
-            100.0 * r.reached,
-            r.inference_ms_median
-        );
-    }
-    Ok(())
-}
-
-/// A progress bar over the episodes of a task.
-fn episode_bar(task: &str, episodes: usize) -> indicatif::ProgressBar {
-    let bar = indicatif::ProgressBar::new(episodes as u64);
-    bar.set_style(
-        indicatif::ProgressStyle::with_template(
-            "{spinner} {msg} [{bar:30}] {pos}/{len} episodes, {elapsed_precise} (eta {eta})",
-        )
-        .unwrap_or_else(|_| indicatif::ProgressStyle::default_bar()),
-    );
-    bar.set_message(task.to_string());
-    bar
 }

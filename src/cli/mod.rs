@@ -1,9 +1,11 @@
 //! Subcommands: parse arguments, call the library, print (text, or one JSON object with --json).
 mod bench;
+mod bench_policy;
 mod episodes;
+mod learned;
 mod policy;
+mod progress;
 mod render;
-mod stack;
 mod track;
 mod tune;
 

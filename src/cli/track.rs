@@ -25,23 +25,10 @@ pub struct TrackArgs {
     json: bool,
 }
 
-pub fn read_keyframes(path: &std::path::Path) -> anyhow::Result<KeyframeFile> {
-    let text =
-        std::fs::read_to_string(path).with_context(|| format!("cannot read the keyframes file {}", path.display()))?;
-    let file: KeyframeFile = serde_json::from_str(&text).with_context(|| {
-        format!(
-            "{} is not a keyframes file; expected {{\"keyframes\":[{{\"position\":[x,y,z],\"quat_wxyz\":[w,x,y,z],\"gripper_open\":true}}, ...]}}",
-            path.display()
-        )
-    })?;
-    anyhow::ensure!(!file.keyframes.is_empty(), "{} has no keyframes", path.display());
-    Ok(file)
-}
-
 pub fn run(args: TrackArgs) -> anyhow::Result<()> {
-    let file = read_keyframes(&args.keyframes)?;
-    let config = super::stack::load_config(args.config.as_deref())?;
-    let (mut world, mut runner) = super::stack::simulated_stack(&args.scene, config)?;
+    let file = KeyframeFile::read(&args.keyframes)?;
+    let config = flowram::rollout::stack::load_controller_config(args.config.as_deref())?;
+    let (mut world, mut runner) = flowram::rollout::stack::simulated_stack(&args.scene, config)?;
     if args.log.is_some() {
         runner.enable_log(file.keyframes.len() as f64 * 12.0, world.timestep());
     }

@@ -42,10 +42,10 @@ struct TuneReport<'a> {
 
 pub fn run(args: TuneArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.duration > 0.0 && args.duration <= 60.0, "--duration must be in (0, 60] seconds");
-    let config = super::stack::load_config(args.config.as_deref())?;
+    let config = flowram::rollout::stack::load_controller_config(args.config.as_deref())?;
     let config_name =
         args.config.as_deref().map_or_else(|| "controllers/osc.toml".to_string(), |p| p.display().to_string());
-    let (mut world, mut runner) = super::stack::simulated_stack(&args.scene, config)?;
+    let (mut world, mut runner) = flowram::rollout::stack::simulated_stack(&args.scene, config)?;
     let result = step_response(&mut world, &mut runner, &args.step, args.smooth, args.duration)?;
     if let Some(path) = &args.plot {
         plot(&result, path).with_context(|| format!("writing the plot {}", path.display()))?;

@@ -29,3 +29,31 @@ impl Keyframe {
 pub struct KeyframeFile {
     pub keyframes: Vec<Keyframe>,
 }
+
+/// Why a keyframes file could not be read.
+#[derive(Debug, thiserror::Error)]
+pub enum KeyframeFileError {
+    #[error("cannot read the keyframes file {}: {source}", path.display())]
+    Read { path: std::path::PathBuf, source: std::io::Error },
+    #[error(
+        "{} is not a keyframes file; expected {{\"keyframes\":[{{\"position\":[x,y,z],\"quat_wxyz\":[w,x,y,z],\"gripper_open\":true}}, ...]}}: {source}",
+        path.display()
+    )]
+    Format { path: std::path::PathBuf, source: serde_json::Error },
+    #[error("{} has no keyframes", path.display())]
+    Empty { path: std::path::PathBuf },
+}
+
+impl KeyframeFile {
+    /// Reads a keyframes file; it must hold at least one keyframe.
+    pub fn read(path: &std::path::Path) -> Result<Self, KeyframeFileError> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|source| KeyframeFileError::Read { path: path.to_path_buf(), source })?;
+        let file: KeyframeFile = serde_json::from_str(&text)
+            .map_err(|source| KeyframeFileError::Format { path: path.to_path_buf(), source })?;
+        if file.keyframes.is_empty() {
+            return Err(KeyframeFileError::Empty { path: path.to_path_buf() });
+        }
+        Ok(file)
+    }
+}

@@ -14,6 +14,9 @@ pub enum PolicyError {
     /// A file could not be read or written, or its content is wrong.
     #[error("{}: {message}", path.display())]
     File { path: PathBuf, message: String },
+    /// A native dependency (the text encoder's weights) is not installed.
+    #[error(transparent)]
+    MissingDependency(#[from] crate::deps::MissingDependency),
     /// A new training run was started in a folder that already holds checkpoints.
     #[error("{}: this run already has checkpoints; resume it, or train into another folder", run.display())]
     RunHasCheckpoints { run: PathBuf },

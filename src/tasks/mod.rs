@@ -2,16 +2,13 @@
 //! (`models/tasks/<task>.xml`), its variations and their instructions (the templates of the
 //! paper's Table A), a seeded reset that randomises object placement within documented ranges,
 //! a success check on the simulator state, and an expert that computes keyframes (TCP pose +
-//! gripper) from the object poses, like RLBench's waypoints. `episode.rs` runs them closed
-//! loop through the control stack, with the expert or a learned policy (`policy_actor.rs`:
-//! FlowRAM) choosing the keyframes.
+//! gripper) from the object poses, like RLBench's waypoints. Task definitions only: the
+//! closed loop that runs them (with the expert or a learned policy) is `crate::rollout`.
 pub mod close_jar;
 pub mod colors;
-pub mod episode;
 pub mod grasp;
 pub mod layout;
 pub mod open_drawer;
-pub mod policy_actor;
 pub mod push_buttons;
 pub mod slide_block;
 pub mod stack_blocks;
@@ -22,17 +19,6 @@ use rand::rngs::StdRng;
 
 use crate::control::keyframe::Keyframe;
 use crate::sim::{SimError, World};
-
-/// A task's per-episode state: what reset chose, and what happened so far.
-#[derive(Debug, Clone, PartialEq)]
-pub struct Episode {
-    pub task: &'static str,
-    pub variation: usize,
-    pub instruction: String,
-    pub seed: u64,
-    /// Task-specific choices of the reset (object names, targets), and progress.
-    pub state: TaskState,
-}
 
 /// What a task remembers between keyframes.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -51,10 +37,6 @@ pub enum TaskError {
     BadVariation { task: &'static str, variation: usize, max: usize },
     #[error(transparent)]
     Sim(#[from] SimError),
-    #[error("{0}")]
-    Config(String),
-    #[error("policy: {0}")]
-    Policy(#[from] crate::policy::PolicyError),
 }
 
 /// One RLBench-style task.

@@ -61,6 +61,13 @@ fn missing_model_file(path: PathBuf, what: &str) -> PolicyError {
 }
 
 impl TextEncoder {
+    /// Loads the weights `scripts/setup.sh` installed (`.deps/minilm`, or under `FLOWRAM_DEPS`).
+    ///
+    /// Errors: [`PolicyError::MissingDependency`] (with what to run) when they are not there.
+    pub fn load_installed() -> Result<Self> {
+        Self::load(&crate::deps::Deps::locate().minilm_dir()?)
+    }
+
     /// Loads all-MiniLM-L6-v2 from `dir` (the folder holding `config.json`, `tokenizer.json` and
     /// `model.safetensors`, e.g. `.deps/minilm`) onto the CPU.
     ///

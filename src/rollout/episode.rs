@@ -1,26 +1,56 @@
-//! Running a task's episode closed loop: reset (seeded), the expert's keyframes executed one
-//! by one through IK -> ruckig -> OSC at 1 kHz on the simulated Panda (no teleporting), the
-//! task observing after each keyframe, success checked at the end. Observations (RGB-D of the
-//! chosen cameras, proprioception) are taken at each keyframe for datasets.
+//! One episode of a task, closed loop: reset (seeded), the objects settle while the controller
+//! holds the arm, then observe -> next keyframe -> execute through IK -> ruckig -> OSC at 1 kHz
+//! on the simulated Panda (no teleporting), the task observing after each keyframe, until the
+//! keyframes run out (expert), the task succeeds (learned policy) or the budget is spent.
+//! Observations (RGB-D of the chosen cameras, proprioception) are taken at each keyframe for
+//! datasets and for the policy.
 use nalgebra::Isometry3;
 use rand::SeedableRng;
 use rand::rngs::StdRng;
 
-use super::{Episode, Task, TaskError};
-use crate::control::backend::RobotBackend;
-use crate::control::osc_config::OscConfig;
+use super::RolloutError;
+use super::stack::build_runner;
+use crate::control::backend::{Cycle, RobotBackend};
 use crate::control::keyframe::Keyframe;
+use crate::control::osc_config::OscConfig;
 use crate::control::runner::Runner;
-use crate::robot::{JointLimits, JointVector};
+use crate::robot::JointVector;
 use crate::sim::{CameraRig, RgbdFrame, World};
+use crate::tasks::{Task, TaskError, TaskState};
 
-/// Who acts in an episode.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Actor {
-    /// The task's scripted expert.
+/// A task's episode: what reset chose, and what happened so far.
+#[derive(Debug, Clone, PartialEq)]
+pub struct TaskEpisode {
+    pub task: &'static str,
+    pub variation: usize,
+    pub instruction: String,
+    pub seed: u64,
+    /// Task-specific choices of the reset (object names, targets), and progress.
+    pub state: TaskState,
+}
+
+/// A learned policy as an episode's actor: the next keyframe from what the cameras see.
+pub trait KeyframePolicy {
+    /// Keyframe `k` of the episode (world frame) for `instruction`, from `observation` (the
+    /// observer's camera frames and the proprioception).
+    fn next_keyframe(
+        &mut self,
+        instruction: &str,
+        k: usize,
+        observation: &KeyframeObservation,
+    ) -> Result<Keyframe, RolloutError>;
+}
+
+/// Where an episode's keyframes come from.
+pub enum Actor<'a> {
+    /// The task's scripted expert (all its keyframes, computed at the start).
     Expert,
     /// Nobody: the arm holds still for the given seconds (checks that success is not trivial).
     Idle { seconds: u32 },
+    /// A learned policy, one keyframe per observation, until the task succeeds or
+    /// `max_keyframes` were executed. Lock-step: the simulation waits for the policy
+    /// (deterministic). Needs an observer with cameras.
+    Policy { policy: &'a mut dyn KeyframePolicy, max_keyframes: usize },
 }
 
 /// The state at one keyframe: images (if cameras were given) and the TCP pose + gripper.
@@ -34,7 +64,7 @@ pub struct KeyframeObservation {
 /// How an episode went.
 #[derive(Debug, Clone)]
 pub struct EpisodeResult {
-    pub episode: Episode,
+    pub episode: TaskEpisode,
     pub success: bool,
     /// Keyframes executed, and how many the controller reached to tolerance.
     pub keyframes: usize,
@@ -42,60 +72,80 @@ pub struct EpisodeResult {
     pub sim_seconds: f64,
     /// One observation before each keyframe (k = 0 is the initial state).
     pub observations: Vec<KeyframeObservation>,
-    /// The keyframe the expert went to from each observation (world frame), as `proprio`.
+    /// The keyframe executed from each observation (world frame), as `proprio`.
     pub actions: Vec<[f32; 8]>,
     /// Where the TCP actually was after each keyframe (world frame), as `proprio`.
     pub reached_poses: Vec<[f32; 8]>,
-    /// Why keyframes were not reached (keyframe index, reason).
+    /// Why keyframes were not reached (keyframe index, reason). Unreachable predictions of a
+    /// learned policy are recorded here, not returned as errors.
     pub problems: Vec<(usize, String)>,
 }
 
-/// Settling time after reset, before the first keyframe (objects come to rest).
-const SETTLE_S: f64 = 0.3;
-
-/// Resets the task (seeded) and runs one episode.
 /// Which cameras to observe at each keyframe (indices into the rig's cameras).
 pub struct Observer<'a> {
     pub rig: &'a mut CameraRig,
     pub cameras: Vec<usize>,
 }
 
+/// Settling time after reset, before the first keyframe (objects come to rest).
+const SETTLE_S: f64 = 0.3;
+
+/// Resets the task (seeded) and runs one episode with `actor` choosing the keyframes, observing
+/// with `observer`'s cameras before each keyframe (none: proprioception only).
 pub fn run_episode(
     task: &dyn Task,
     world: &mut World,
     variation: usize,
     seed: u64,
-    actor: Actor,
-    mut cameras: Option<&mut Observer<'_>>,
-) -> Result<EpisodeResult, TaskError> {
+    mut actor: Actor<'_>,
+    mut observer: Option<&mut Observer<'_>>,
+) -> Result<EpisodeResult, RolloutError> {
+    if matches!(actor, Actor::Policy { .. }) && observer.as_ref().is_none_or(|o| o.cameras.is_empty()) {
+        return Err(RolloutError::NoCameras);
+    }
     let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
-    let keyframes = match actor {
-        Actor::Expert => task.expert(world, &state)?,
-        Actor::Idle { .. } => Vec::new(),
-    };
     let base = world.base_pose();
+    let instruction = task.instruction(variation);
+    let (planned, budget) = match actor {
+        Actor::Expert => {
+            let planned = task.expert(world, &state)?;
+            let budget = planned.len();
+            (planned, budget)
+        }
+        Actor::Idle { .. } => (Vec::new(), 0),
+        Actor::Policy { max_keyframes, .. } => (Vec::new(), max_keyframes),
+    };
     let mut result = EpisodeResult {
-        episode: Episode {
+        episode: TaskEpisode {
             task: task.name(),
             variation,
-            instruction: task.instruction(variation),
+            instruction: instruction.clone(),
             seed,
             state: Default::default(),
         },
         success: false,
-        keyframes: keyframes.len(),
+        keyframes: 0,
         reached: 0,
         sim_seconds: 0.0,
-        observations: Vec::with_capacity(keyframes.len()),
-        actions: Vec::with_capacity(keyframes.len()),
-        reached_poses: Vec::with_capacity(keyframes.len()),
+        observations: Vec::with_capacity(budget),
+        actions: Vec::with_capacity(budget),
+        reached_poses: Vec::with_capacity(budget),
         problems: Vec::new(),
     };
     let mut gripper_open = true;
-    for (k, keyframe) in keyframes.iter().enumerate() {
-        result.observations.push(observe(world, cameras.as_deref_mut(), gripper_open)?);
-        execute(task, world, &mut runner, &base, k, keyframe, &mut state, &mut result)?;
+    for k in 0..budget {
+        let observation = observe(world, observer.as_deref_mut(), gripper_open)?;
+        let keyframe = match &mut actor {
+            Actor::Policy { policy, .. } => policy.next_keyframe(&instruction, k, &observation)?,
+            _ => planned[k],
+        };
+        result.observations.push(observation);
+        execute(task, world, &mut runner, &base, k, &keyframe, &mut state, &mut result)?;
+        result.keyframes += 1;
         gripper_open = keyframe.gripper_open;
+        if matches!(actor, Actor::Policy { .. }) && task.success(world, &state) {
+            break;
+        }
     }
     if let Actor::Idle { seconds } = actor {
         hold(world, &mut runner, f64::from(seconds))?;
@@ -116,11 +166,11 @@ fn execute(
     base: &Isometry3<f64>,
     k: usize,
     keyframe: &Keyframe,
-    state: &mut super::TaskState,
+    state: &mut TaskState,
     result: &mut EpisodeResult,
-) -> Result<(), TaskError> {
+) -> Result<(), RolloutError> {
     result.actions.push(proprio_of(keyframe));
-    let report = runner.run(world, &[in_base(base, keyframe)?]).map_err(|e| TaskError::Config(e.to_string()))?;
+    let report = runner.run(world, &[in_base(base, k, keyframe)?])?;
     for r in &report.keyframes {
         if r.reached {
             result.reached += 1;
@@ -133,115 +183,38 @@ fn execute(
     Ok(())
 }
 
-/// A learned policy as an episode's actor: the next keyframe from what the cameras see.
-pub trait KeyframePolicy {
-    /// Keyframe `k` of the episode (world frame) for `instruction`, from `observation` (the
-    /// observer's camera frames and the proprioception).
-    fn next_keyframe(
-        &mut self,
-        instruction: &str,
-        k: usize,
-        observation: &KeyframeObservation,
-    ) -> Result<Keyframe, TaskError>;
-}
-
-/// Resets the task (seeded) and lets `policy` act closed loop: observe with the observer's
-/// cameras, predict the next keyframe, execute it through IK -> ruckig -> OSC, and again, until
-/// the task succeeds or `max_keyframes` were executed. Lock-step: the simulation waits for the
-/// policy (deterministic). Unreachable predictions are recorded as problems, not errors.
-pub fn run_policy_episode(
-    task: &dyn Task,
-    world: &mut World,
-    variation: usize,
-    seed: u64,
-    policy: &mut dyn KeyframePolicy,
-    observer: &mut Observer<'_>,
-    max_keyframes: usize,
-) -> Result<EpisodeResult, TaskError> {
-    let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
-    let base = world.base_pose();
-    let instruction = task.instruction(variation);
-    let mut result = EpisodeResult {
-        episode: Episode {
-            task: task.name(),
-            variation,
-            instruction: instruction.clone(),
-            seed,
-            state: Default::default(),
-        },
-        success: false,
-        keyframes: 0,
-        reached: 0,
-        sim_seconds: 0.0,
-        observations: Vec::new(),
-        actions: Vec::new(),
-        reached_poses: Vec::new(),
-        problems: Vec::new(),
-    };
-    let mut gripper_open = true;
-    for k in 0..max_keyframes {
-        let observation = observe(world, Some(&mut *observer), gripper_open)?;
-        let keyframe = policy.next_keyframe(&instruction, k, &observation)?;
-        result.observations.push(observation);
-        execute(task, world, &mut runner, &base, k, &keyframe, &mut state, &mut result)?;
-        result.keyframes += 1;
-        gripper_open = keyframe.gripper_open;
-        if task.success(world, &state) {
-            break;
-        }
-    }
-    result.success = task.success(world, &state);
-    result.sim_seconds = world.time() - t0;
-    result.episode.state = state;
-    Ok(result)
-}
-
 /// Resets the world and the task (seeded), builds the control stack and lets the objects
 /// settle while the controller holds the arm. Returns the task state, the runner and the start
 /// time.
-fn begin(
-    task: &dyn Task,
-    world: &mut World,
-    variation: usize,
-    seed: u64,
-) -> Result<(super::TaskState, Runner, f64), TaskError> {
+fn begin(task: &dyn Task, world: &mut World, variation: usize, seed: u64) -> Result<(TaskState, Runner, f64), RolloutError> {
     if variation >= task.variation_count() {
-        return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 });
+        return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 }.into());
     }
     world.reset_to("home")?;
     let mut rng = StdRng::seed_from_u64(seed);
     let state = task.reset(world, variation, &mut rng)?;
-    let limits = JointLimits::panda().map_err(|e| TaskError::Config(e.to_string()))?;
-    let config = OscConfig::default_profile().map_err(|e| TaskError::Config(e.to_string()))?;
-    let description = world.arm_description()?;
-    let mut runner = Runner::build(&description, limits, config, &world.read_state(), world.timestep())
-        .map_err(|e| TaskError::Config(e.to_string()))?;
+    let mut runner = build_runner(world, OscConfig::default_profile()?)?;
     let t0 = world.time();
     hold(world, &mut runner, SETTLE_S)?;
     Ok((state, runner, t0))
 }
 
 /// Holds the arm where it is for `seconds`.
-fn hold(world: &mut World, runner: &mut Runner, seconds: f64) -> Result<(), TaskError> {
+fn hold(world: &mut World, runner: &mut Runner, seconds: f64) -> Result<(), RolloutError> {
     let q: JointVector = world.read_state().q;
     runner.controller.set_goal(&q);
     let end = world.time() + seconds;
-    world
-        .control(|state| {
-            let command = runner.controller.tick(state);
-            if state.time >= end {
-                crate::control::backend::Cycle::Finish(command)
-            } else {
-                crate::control::backend::Cycle::Continue(command)
-            }
-        })
-        .map_err(|e| TaskError::Config(e.to_string()))?;
+    world.control(|state| {
+        let command = runner.controller.tick(state);
+        if state.time >= end { Cycle::Finish(command) } else { Cycle::Continue(command) }
+    })?;
     Ok(())
 }
 
-fn in_base(base: &Isometry3<f64>, keyframe: &Keyframe) -> Result<Keyframe, TaskError> {
+/// Keyframe `k` (world frame) in the arm's base frame.
+fn in_base(base: &Isometry3<f64>, k: usize, keyframe: &Keyframe) -> Result<Keyframe, RolloutError> {
     let pose = crate::control::ik::target_pose(keyframe.position, keyframe.quat_wxyz)
-        .map_err(|e| TaskError::Config(format!("the expert produced an invalid keyframe: {e}")))?;
+        .map_err(|source| RolloutError::InvalidKeyframe { index: k, source })?;
     Ok(Keyframe::at(&(base.inverse() * pose), keyframe.gripper_open))
 }
 
@@ -258,7 +231,7 @@ fn observe(
     world: &mut World,
     cameras: Option<&mut Observer<'_>>,
     gripper_open: bool,
-) -> Result<KeyframeObservation, TaskError> {
+) -> Result<KeyframeObservation, RolloutError> {
     let mut frames = Vec::new();
     if let Some(o) = cameras {
         for &i in &o.cameras {
@@ -267,7 +240,6 @@ fn observe(
     }
     Ok(KeyframeObservation { frames, proprio: tcp_proprio(world, gripper_open) })
 }
-
 impl EpisodeResult {
     /// The episode as a dataset record (needs observations with images).
     pub fn to_dataset_episode(&self) -> Option<crate::data::Episode> {

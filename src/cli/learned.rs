@@ -1,0 +1,48 @@
+//! The arguments of a learned policy acting closed loop (`run --policy flowram`,
+//! `bench success`), and loading it.
+use std::path::PathBuf;
+
+use anyhow::Context;
+use clap::Args;
+use flowram::policy::inference::{Policy, SamplingOptions};
+use flowram::policy::network::text_encoder::TextEncoder;
+use flowram::rollout::learned::FlowRamActor;
+
+/// How a learned policy runs closed loop.
+#[derive(Debug, Args)]
+pub struct LearnedArgs {
+    /// Run folder (runs/NAME) or checkpoint folder of a trained policy.
+    #[arg(long)]
+    pub checkpoint: Option<PathBuf>,
+    /// Euler steps (default: the checkpoint's flow.sampling_steps).
+    #[arg(long)]
+    pub steps: Option<usize>,
+    /// Global geometric tokens at every step (the w/o-DRS ablation).
+    #[arg(long)]
+    pub no_drs: bool,
+    /// Stop after this many predicted keyframes if the task has not succeeded.
+    #[arg(long, default_value_t = 10)]
+    pub max_keyframes: usize,
+    /// Cameras the policy sees, in the training datasets' order.
+    #[arg(long, value_delimiter = ',', default_value = "front,left_shoulder,right_shoulder,wrist")]
+    pub cameras: Vec<String>,
+}
+
+impl LearnedArgs {
+    /// Loads the checkpoint (`--checkpoint`), with the sampling options.
+    pub fn load_actor(&self) -> anyhow::Result<FlowRamActor> {
+        let checkpoint = self
+            .checkpoint
+            .as_ref()
+            .context("the learned policy needs --checkpoint runs/NAME (a run folder from `flowram train`)")?;
+        anyhow::ensure!(self.max_keyframes > 0, "--max-keyframes must be at least 1");
+        let policy = Policy::load(checkpoint, TextEncoder::load_installed()?)?;
+        let options = SamplingOptions {
+            steps: self.steps.unwrap_or(policy.config().flow.sampling_steps),
+            samples: 1,
+            drs: !self.no_drs,
+            seed: 0,
+        };
+        Ok(FlowRamActor::new(policy, options))
+    }
+}

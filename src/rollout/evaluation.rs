@@ -1,0 +1,252 @@
+//! Evaluations of a trained policy:
+//! - closed-loop success rates on held-out seeds of tasks ([`success_rates`]);
+//! - held-out keyframe errors (position, rotation, gripper) against two trivial baselines,
+//!   always the training set's mean keyframe and always the mean keyframe of the same task
+//!   ([`heldout_errors`]).
+use std::time::Instant;
+
+use serde::Serialize;
+
+use super::RolloutError;
+use super::episode::Observer;
+use super::learned::{FlowRamActor, learned_episode, policy_rig};
+use crate::data::Episode;
+use crate::policy::inference::{Policy, SamplingOptions};
+use crate::policy::scene::observation::{KeyframePose, Observation};
+use crate::policy::scene::rotation::{quaternion_from_6d, quaternion_to_6d};
+use crate::policy::training::data::TrainingData;
+use crate::stats::median;
+use crate::tasks::{self, Task};
+
+/// Progress of an evaluation, for a progress bar: `done` of `total` items of `group` (a task).
+pub trait EvaluationProgress {
+    fn started(&mut self, group: &str, total: usize);
+    fn advanced(&mut self, done: usize);
+    fn finished(&mut self);
+}
+
+/// No progress report.
+impl EvaluationProgress for () {
+    fn started(&mut self, _: &str, _: usize) {}
+    fn advanced(&mut self, _: usize) {}
+    fn finished(&mut self) {}
+}
+
+/// How the closed-loop episodes of [`success_rates`] run.
+#[derive(Debug, Clone)]
+pub struct SuccessOptions {
+    /// Episodes per task.
+    pub episodes: usize,
+    /// Seed of the first episode (episode i: seed + i, variation = seed modulo variations).
+    pub seed: u64,
+    /// Stop after this many predicted keyframes if the task has not succeeded.
+    pub max_keyframes: usize,
+    /// Cameras the policy sees, in the training datasets' order.
+    pub cameras: Vec<String>,
+}
+
+/// Closed-loop success of one task.
+#[derive(Debug, Clone, Serialize)]
+pub struct TaskSuccess {
+    pub task: String,
+    pub episodes: usize,
+    pub successes: usize,
+    pub success_rate: f64,
+    /// Mean predicted keyframes per episode.
+    pub keyframes: f64,
+    /// Fraction of predicted keyframes the controller reached (IK solvable, tracked to tolerance).
+    pub reached: f64,
+    pub inference_ms_median: f64,
+}
+
+/// Closed-loop success rates of `actor` on `options.episodes` held-out seeds of each task.
+pub fn success_rates(
+    actor: &mut FlowRamActor,
+    task_list: &[Box<dyn Task>],
+    options: &SuccessOptions,
+    progress: &mut dyn EvaluationProgress,
+) -> Result<Vec<TaskSuccess>, RolloutError> {
+    if options.episodes == 0 {
+        return Err(RolloutError::Zero { what: "the episodes per task" });
+    }
+    let mut reports = Vec::with_capacity(task_list.len());
+    for task in task_list {
+        let mut world = tasks::load_world(task.as_ref())?;
+        actor.inference_ms.clear();
+        let (mut rig, cameras) = policy_rig(&actor.policy, &world, &options.cameras)?;
+        progress.started(task.name(), options.episodes);
+        let (mut successes, mut keyframes, mut reached) = (0usize, 0usize, 0usize);
+        for i in 0..options.episodes {
+            let seed = options.seed + i as u64;
+            let variation = seed as usize % task.variation_count();
+            let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
+            let result =
+                learned_episode(actor, task.as_ref(), &mut world, variation, seed, &mut observer, options.max_keyframes)?;
+            successes += usize::from(result.success);
+            keyframes += result.keyframes;
+            reached += result.reached;
+            progress.advanced(i + 1);
+        }
+        progress.finished();
+        reports.push(TaskSuccess {
+            task: task.name().into(),
+            episodes: options.episodes,
+            successes,
+            success_rate: successes as f64 / options.episodes as f64,
+            keyframes: keyframes as f64 / options.episodes as f64,
+            reached: if keyframes > 0 { reached as f64 / keyframes as f64 } else { 0.0 },
+            inference_ms_median: median(&actor.inference_ms),
+        });
+    }
+    Ok(reports)
+}
+
+/// Summary of keyframe errors.
+#[derive(Debug, Clone, Serialize, Default)]
+pub struct Errors {
+    pub position_mm_mean: f64,
+    pub position_mm_median: f64,
+    pub rotation_deg_mean: f64,
+    pub rotation_deg_median: f64,
+    pub gripper_accuracy: f64,
+}
+
+/// The errors of the model and the two baselines on the held-out keyframes of one task (or all).
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOutErrors {
+    /// The task's name, or "all".
+    pub task: String,
+    pub keyframes: usize,
+    pub model: Errors,
+    /// Always the training set's mean keyframe.
+    pub training_mean: Errors,
+    /// Always the mean keyframe of the training episodes of the same task (the instruction names
+    /// the task, so this is what a model that ignores the scene could reach).
+    pub task_mean: Errors,
+}
+
+/// Held-out keyframe errors, over all tasks and per task.
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOutReport {
+    pub keyframes: usize,
+    pub episodes: usize,
+    pub steps: usize,
+    pub model: Errors,
+    pub training_mean: Errors,
+    pub task_mean: Errors,
+    /// The same per task.
+    pub tasks: Vec<HeldOutErrors>,
+    pub seconds: f64,
+}
+
+/// Position error (m), rotation error (rad) and whether the gripper is right, of one keyframe.
+type KeyframeError = (f32, f32, bool);
+
+fn summarise(rows: &[KeyframeError]) -> Errors {
+    let n = rows.len().max(1) as f64;
+    let pos: Vec<f64> = rows.iter().map(|r| f64::from(r.0) * 1e3).collect();
+    let rot: Vec<f64> = rows.iter().map(|r| f64::from(r.1).to_degrees()).collect();
+    Errors {
+        position_mm_mean: pos.iter().sum::<f64>() / n,
+        position_mm_median: median(&pos),
+        rotation_deg_mean: rot.iter().sum::<f64>() / n,
+        rotation_deg_median: median(&rot),
+        gripper_accuracy: rows.iter().filter(|r| r.2).count() as f64 / n,
+    }
+}
+
+/// The mean keyframe of `episodes` (mean position, chordal-mean rotation, majority gripper);
+/// `None` when they hold no keyframes.
+pub fn mean_keyframe<'a>(
+    episodes: impl Iterator<Item = &'a Episode>,
+) -> Result<Option<KeyframePose>, RolloutError> {
+    let mut sum = [0f64; 9];
+    let (mut count, mut open) = (0usize, 0usize);
+    for e in episodes {
+        for k in 0..e.keyframes() {
+            let a = Observation::episode_action(e, k);
+            let r = quaternion_to_6d(a.quat_wxyz)?;
+            for i in 0..3 {
+                sum[i] += f64::from(a.position[i]);
+            }
+            for i in 0..6 {
+                sum[3 + i] += f64::from(r[i]);
+            }
+            count += 1;
+            open += usize::from(a.gripper_open);
+        }
+    }
+    if count == 0 {
+        return Ok(None);
+    }
+    let mean = |i: usize| (sum[i] / count as f64) as f32;
+    Ok(Some(KeyframePose {
+        position: [mean(0), mean(1), mean(2)],
+        quat_wxyz: quaternion_from_6d(std::array::from_fn(|i| mean(3 + i))),
+        gripper_open: 2 * open >= count,
+    }))
+}
+
+/// Held-out keyframe errors of `policy` (`steps` Euler steps, DRS, noise seed = keyframe index)
+/// on every keyframe of `held_out`, against the mean keyframes of `train` (overall and per task).
+pub fn heldout_errors(
+    policy: &mut Policy,
+    train: &TrainingData,
+    held_out: &TrainingData,
+    steps: usize,
+    progress: &mut dyn EvaluationProgress,
+) -> Result<HeldOutReport, RolloutError> {
+    let baseline = mean_keyframe(train.episodes().iter())?
+        .ok_or_else(|| RolloutError::NoBaseline { of: "the training datasets".into() })?;
+    let mut task_names: Vec<String> = held_out.episodes().iter().map(|e| e.task.clone()).collect();
+    task_names.sort();
+    task_names.dedup();
+    let started = Instant::now();
+    // per held-out keyframe: task index, (model, training mean, task mean) errors
+    let mut rows: Vec<(usize, [KeyframeError; 3])> = Vec::new();
+    for (ti, task) in task_names.iter().enumerate() {
+        let task_baseline = mean_keyframe(train.episodes().iter().filter(|e| &e.task == task))?
+            .ok_or_else(|| RolloutError::NoBaseline { of: format!("task {task}") })?;
+        let episodes: Vec<&Episode> = held_out.episodes().iter().filter(|e| &e.task == task).collect();
+        progress.started(task, episodes.iter().map(|e| e.keyframes()).sum());
+        let mut done = 0;
+        for e in episodes {
+            for k in 0..e.keyframes() {
+                let observation = Observation::from_episode(e, k)?;
+                let target = Observation::episode_action(e, k);
+                let options = SamplingOptions { steps, samples: 1, drs: true, seed: k as u64 };
+                let predicted = policy.predict(&observation, &options)?[0];
+                let row = |p: &KeyframePose| {
+                    let (d, r) = p.error_to(&target);
+                    (d, r, p.gripper_open == target.gripper_open)
+                };
+                rows.push((ti, [row(&predicted), row(&baseline), row(&task_baseline)]));
+                done += 1;
+                progress.advanced(done);
+            }
+        }
+        progress.finished();
+    }
+    let errors = |name: &str, filter: &dyn Fn(usize) -> bool| {
+        let pick = |j: usize| rows.iter().filter(|r| filter(r.0)).map(|r| r.1[j]).collect::<Vec<_>>();
+        HeldOutErrors {
+            task: name.to_string(),
+            keyframes: rows.iter().filter(|r| filter(r.0)).count(),
+            model: summarise(&pick(0)),
+            training_mean: summarise(&pick(1)),
+            task_mean: summarise(&pick(2)),
+        }
+    };
+    let all = errors("all", &|_| true);
+    let tasks = task_names.iter().enumerate().map(|(ti, name)| errors(name, &|t| t == ti)).collect();
+    Ok(HeldOutReport {
+        keyframes: all.keyframes,
+        episodes: held_out.episodes().len(),
+        steps,
+        model: all.model,
+        training_mean: all.training_mean,
+        task_mean: all.task_mean,
+        tasks,
+        seconds: started.elapsed().as_secs_f64(),
+    })
+}

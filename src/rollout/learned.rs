@@ -1,0 +1,120 @@
+//! A trained FlowRAM checkpoint as an episode's actor ([`KeyframePolicy`]): the observer's RGB-D
+//! frames, the proprioception and the instruction in, the first sampled keyframe out; and the
+//! camera rig it looks through.
+use std::time::Instant;
+
+use super::RolloutError;
+use super::episode::{Actor, EpisodeResult, KeyframeObservation, KeyframePolicy, Observer, run_episode};
+use crate::control::keyframe::Keyframe;
+use crate::policy::inference::{Policy, SamplingOptions};
+use crate::policy::scene::observation::{CameraView, Observation};
+use crate::sim::{CameraRig, Visuals, World};
+use crate::tasks::Task;
+
+/// The cameras the policies here are trained with, in the datasets' order.
+pub const DEFAULT_CAMERAS: [&str; 4] = ["front", "left_shoulder", "right_shoulder", "wrist"];
+
+/// A trained policy acting in lock-step with the simulation.
+pub struct FlowRamActor {
+    pub policy: Policy,
+    /// Euler steps, samples (the first is executed), DRS; `seed` is the noise seed of an
+    /// episode's first keyframe, keyframe k uses `seed + k` (an episode is the same whether run
+    /// alone or as one of many).
+    pub options: SamplingOptions,
+    /// Wall-clock milliseconds of each prediction, observation to keyframe.
+    pub inference_ms: Vec<f64>,
+}
+
+impl FlowRamActor {
+    pub fn new(policy: Policy, options: SamplingOptions) -> Self {
+        Self { policy, options, inference_ms: Vec::new() }
+    }
+}
+
+impl KeyframePolicy for FlowRamActor {
+    fn next_keyframe(
+        &mut self,
+        instruction: &str,
+        k: usize,
+        observation: &KeyframeObservation,
+    ) -> Result<Keyframe, RolloutError> {
+        let observation = policy_observation(instruction, observation)?;
+        let options = SamplingOptions { seed: self.options.seed + k as u64, ..self.options };
+        let start = Instant::now();
+        let poses = self.policy.predict(&observation, &options)?;
+        self.inference_ms.push(start.elapsed().as_secs_f64() * 1e3);
+        let pose = poses.first().ok_or(RolloutError::NoKeyframe)?;
+        Ok(Keyframe {
+            position: pose.position.map(f64::from),
+            quat_wxyz: pose.quat_wxyz.map(f64::from),
+            gripper_open: pose.gripper_open,
+        })
+    }
+}
+
+/// The policy's view of a keyframe observation (square frames of one size, in the observer's
+/// camera order).
+pub fn policy_observation(instruction: &str, observation: &KeyframeObservation) -> Result<Observation, RolloutError> {
+    let first = observation.frames.first().ok_or(RolloutError::NoCameras)?;
+    let size = first.intrinsics.width;
+    let mut cameras = Vec::with_capacity(observation.frames.len());
+    for frame in &observation.frames {
+        if frame.intrinsics.width != size || frame.intrinsics.height != size {
+            return Err(RolloutError::FrameSize {
+                camera: frame.camera.clone(),
+                width: frame.intrinsics.width,
+                height: frame.intrinsics.height,
+                size,
+            });
+        }
+        let k = frame.intrinsics.matrix();
+        let e = frame.extrinsics.to_homogeneous();
+        cameras.push(CameraView {
+            rgb: frame.rgb.clone(),
+            depth: frame.depth.clone(),
+            intrinsics: std::array::from_fn(|r| std::array::from_fn(|c| k[(r, c)] as f32)),
+            camera_to_world: std::array::from_fn(|r| std::array::from_fn(|c| e[(r, c)] as f32)),
+        });
+    }
+    Ok(Observation { size, cameras, proprio: observation.proprio, instruction: instruction.to_string() })
+}
+
+/// A camera rig for `world` at the image size the policy was trained on, and the indices of
+/// `cameras` in it.
+pub fn policy_rig(policy: &Policy, world: &World, cameras: &[String]) -> Result<(CameraRig, Vec<usize>), RolloutError> {
+    let rig = CameraRig::new(world, policy.config().observation.image_size, Visuals::Full)?;
+    let indices = cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
+    Ok((rig, indices))
+}
+
+/// One closed-loop episode of `actor` on `task`, seen through `cameras` (names, in the training
+/// datasets' order), for at most `max_keyframes` keyframes.
+pub fn policy_episode(
+    actor: &mut FlowRamActor,
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+    cameras: &[String],
+    max_keyframes: usize,
+) -> Result<EpisodeResult, RolloutError> {
+    let (mut rig, indices) = policy_rig(&actor.policy, world, cameras)?;
+    let mut observer = Observer { rig: &mut rig, cameras: indices };
+    learned_episode(actor, task, world, variation, seed, &mut observer, max_keyframes)
+}
+
+/// [`policy_episode`] with a rig already built (for many episodes in one world).
+pub fn learned_episode(
+    actor: &mut FlowRamActor,
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+    observer: &mut Observer<'_>,
+    max_keyframes: usize,
+) -> Result<EpisodeResult, RolloutError> {
+    if max_keyframes == 0 {
+        return Err(RolloutError::Zero { what: "the keyframes per episode" });
+    }
+    run_episode(task, world, variation, seed, Actor::Policy { policy: actor, max_keyframes }, Some(observer))
+}

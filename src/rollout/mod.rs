@@ -1,0 +1,62 @@
+//! The closed loop: tasks, the simulated control stack and a keyframe source composed into
+//! episodes, and the evaluations built on them.
+//!
+//! - [`stack`]: the simulated Panda and its control stack (IK -> ruckig -> OSC at 1 kHz);
+//! - [`episode`]: the one episode loop (reset, observe, next keyframe, execute, until done),
+//!   fed by the task's expert, nobody (idle), or a learned [`episode::KeyframePolicy`];
+//! - [`learned`]: a trained FlowRAM checkpoint as a keyframe policy, in lock-step with the
+//!   simulation;
+//! - [`collection`]: expert demonstrations collected into datasets;
+//! - [`evaluation`]: closed-loop success rates on held-out seeds, and held-out keyframe errors
+//!   against trivial baselines.
+pub mod collection;
+pub mod episode;
+pub mod evaluation;
+pub mod learned;
+pub mod stack;
+
+use crate::config::ConfigError;
+use crate::control::backend::BackendError;
+use crate::control::ik::IkError;
+use crate::control::runner::StackError;
+use crate::data::DataError;
+use crate::policy::PolicyError;
+use crate::sim::SimError;
+use crate::tasks::TaskError;
+
+/// What can go wrong running episodes and evaluations.
+#[derive(Debug, thiserror::Error)]
+pub enum RolloutError {
+    #[error(transparent)]
+    Task(#[from] TaskError),
+    #[error(transparent)]
+    Sim(#[from] SimError),
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    #[error("building the control stack: {0}")]
+    Stack(#[from] StackError),
+    #[error(transparent)]
+    Backend(#[from] BackendError),
+    #[error(transparent)]
+    Policy(#[from] PolicyError),
+    #[error(transparent)]
+    Data(#[from] DataError),
+    /// A keyframe that cannot be a target pose (non-finite position, zero quaternion).
+    #[error("keyframe {index} is not a valid pose: {source}")]
+    InvalidKeyframe { index: usize, source: IkError },
+    /// A learned policy was asked to act without camera frames to look at.
+    #[error("the policy needs camera frames, but the episode observes no cameras")]
+    NoCameras,
+    /// The policy sees square frames of one size.
+    #[error("the policy needs square frames of one size; camera {camera} is {width}x{height} (the first is {size}x{size})")]
+    FrameSize { camera: String, width: usize, height: usize, size: usize },
+    /// The policy returned no keyframe.
+    #[error("the policy returned no keyframe")]
+    NoKeyframe,
+    /// A count that must be positive was zero (episodes, keyframes per episode).
+    #[error("{what} must be at least 1")]
+    Zero { what: &'static str },
+    /// A baseline of the held-out evaluation has no training keyframes to average.
+    #[error("no training keyframes of {of} to form a baseline from")]
+    NoBaseline { of: String },
+}

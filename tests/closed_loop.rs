@@ -3,14 +3,14 @@
 //! conversion of rendered frames to the policy's observation (identical to the dataset path the
 //! policy was trained on), and FlowRAM itself acting through the real control stack.
 use flowram::control::keyframe::Keyframe;
-use flowram::deps::Deps;
 use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SamplingOptions};
-use flowram::policy::scene::observation::Observation;
 use flowram::policy::network::text_encoder::TextEncoder;
+use flowram::policy::scene::observation::Observation;
+use flowram::rollout::RolloutError;
+use flowram::rollout::episode::{Actor, KeyframeObservation, KeyframePolicy, Observer, run_episode};
+use flowram::rollout::learned::{FlowRamActor, learned_episode, policy_observation};
 use flowram::sim::{CameraRig, Visuals};
-use flowram::tasks::episode::{Actor, KeyframeObservation, KeyframePolicy, Observer, run_episode, run_policy_episode};
-use flowram::tasks::policy_actor::{FlowRamActor, policy_observation};
 use flowram::tasks::{self, TaskError};
 
 /// Plays back recorded keyframes, and remembers what it was shown.
@@ -25,10 +25,10 @@ impl KeyframePolicy for Replay {
         _instruction: &str,
         k: usize,
         observation: &KeyframeObservation,
-    ) -> Result<Keyframe, TaskError> {
+    ) -> Result<Keyframe, RolloutError> {
         assert_eq!(k, self.seen.len(), "keyframes are asked for in order");
         self.seen.push(observation.proprio);
-        let a = self.keyframes.get(k).ok_or_else(|| TaskError::Config(format!("no recorded keyframe {k}")))?;
+        let a = self.keyframes.get(k).ok_or(RolloutError::NoKeyframe)?;
         Ok(Keyframe {
             position: [a[0], a[1], a[2]].map(f64::from),
             quat_wxyz: [a[3], a[4], a[5], a[6]].map(f64::from),
@@ -47,8 +47,8 @@ fn expert_keyframes_replayed_through_the_policy_loop_succeed_and_stop_there() {
     let mut rig = CameraRig::new(&world, 32, Visuals::Fast).unwrap();
     let mut observer = Observer { rig: &mut rig, cameras: vec![0] };
     // more keyframes allowed than recorded: the loop must stop at success, not ask for more
-    let result =
-        run_policy_episode(task.as_ref(), &mut world, 3, 7, &mut replay, &mut observer, expert.keyframes + 3).unwrap();
+    let actor = Actor::Policy { policy: &mut replay, max_keyframes: expert.keyframes + 3 };
+    let result = run_episode(task.as_ref(), &mut world, 3, 7, actor, Some(&mut observer)).unwrap();
     assert!(result.success, "problems: {:?}", result.problems);
     // the expert's last keyframe retreats after the last press: the loop stops before it
     assert_eq!(result.keyframes, expert.keyframes - 1);
@@ -60,9 +60,10 @@ fn expert_keyframes_replayed_through_the_policy_loop_succeed_and_stop_there() {
     assert_eq!(replay.seen, result.observations.iter().map(|o| o.proprio).collect::<Vec<_>>());
     assert_ne!(replay.seen[0], replay.seen[1]);
     // a bad variation is refused before anything runs
+    let actor = Actor::Policy { policy: &mut replay, max_keyframes: 3 };
     assert!(matches!(
-        run_policy_episode(task.as_ref(), &mut world, 999, 7, &mut replay, &mut observer, 3),
-        Err(TaskError::BadVariation { .. })
+        run_episode(task.as_ref(), &mut world, 999, 7, actor, Some(&mut observer)),
+        Err(RolloutError::Task(TaskError::BadVariation { .. }))
     ));
 }
 
@@ -103,7 +104,7 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     config.observation.min_inside = 8;
     config.model.layers = 1;
     config.validate().unwrap();
-    let text = TextEncoder::load(&Deps::locate().minilm_dir().unwrap()).unwrap();
+    let text = TextEncoder::load_installed().unwrap();
     let policy = Policy::random(&config, text).unwrap();
     let options = SamplingOptions { steps: 2, samples: 1, drs: true, seed: 5 };
     let mut actor = FlowRamActor::new(policy, options);
@@ -112,7 +113,7 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     let mut rig = CameraRig::new(&world, 48, Visuals::Fast).unwrap();
     let cameras = vec![rig.camera_index("front").unwrap(), rig.camera_index("left_shoulder").unwrap()];
     let mut observer = Observer { rig: &mut rig, cameras };
-    let result = run_policy_episode(task.as_ref(), &mut world, 0, 1, &mut actor, &mut observer, 2).unwrap();
+    let result = learned_episode(&mut actor, task.as_ref(), &mut world, 0, 1, &mut observer, 2).unwrap();
     // an untrained policy does not slide the block: both keyframes were asked for and executed
     assert!(!result.success);
     assert_eq!(result.keyframes, 2);
@@ -126,6 +127,6 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     // the noise seed advances per keyframe, so two predictions from similar observations differ
     assert_ne!(result.actions[0], result.actions[1]);
     // and restarts per episode: the same seeded episode again gives the same keyframes
-    let again = run_policy_episode(task.as_ref(), &mut world, 0, 1, &mut actor, &mut observer, 2).unwrap();
+    let again = learned_episode(&mut actor, task.as_ref(), &mut world, 0, 1, &mut observer, 2).unwrap();
     assert_eq!(again.actions, result.actions);
 }

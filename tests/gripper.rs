@@ -1,23 +1,13 @@
 //! The gripper closes on an object and the grasp check tells a grasp from an empty close.
 mod common;
 
-use flowram::control::backend::RobotBackend;
-use flowram::control::osc_config::OscConfig;
 use flowram::control::keyframe::Keyframe;
-use flowram::control::runner::Runner;
-use flowram::robot::JointLimits;
+use flowram::control::osc_config::OscConfig;
+use flowram::rollout::stack::build_runner;
 use flowram::sim::World;
 
 fn close_at_home(world: &mut World) -> String {
-    let limits = JointLimits::panda().unwrap();
-    let mut runner = Runner::build(
-        &world.arm_description().unwrap(),
-        limits,
-        OscConfig::default_profile().unwrap(),
-        &world.read_state(),
-        world.timestep(),
-    )
-    .unwrap();
+    let mut runner = build_runner(world, OscConfig::default_profile().unwrap()).unwrap();
     let home = world.arm_state().tcp_in_base;
     let report = runner.run(world, &[Keyframe::at(&home, false)]).unwrap();
     assert_eq!(report.limit_violations, 0);

@@ -3,23 +3,20 @@
 use std::sync::OnceLock;
 
 use flowram::data::Episode;
-use flowram::deps::Deps;
 use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SamplingOptions};
-use flowram::policy::scene::observation::Observation;
 use flowram::policy::network::text_encoder::TextEncoder;
+use flowram::policy::scene::observation::Observation;
 use flowram::policy::training::data::TrainingData;
 use flowram::policy::training::trainer::{StepLoss, TrainProgress, Trainer, train};
-use flowram::sim::{CameraRig, Visuals};
-use flowram::tasks::{
-    self,
-    episode::{Actor, Observer, run_episode},
-};
+use flowram::rollout::collection;
+use flowram::sim::Visuals;
+use flowram::tasks;
 
 fn text() -> TextEncoder {
     // the binary's allocator settings (training steps twice as fast; see policy::runtime)
     flowram::policy::runtime::configure_malloc();
-    TextEncoder::load(&Deps::locate().minilm_dir().unwrap()).unwrap()
+    TextEncoder::load_installed().unwrap()
 }
 
 /// One push_buttons demonstration (front and wrist cameras, 64 px), rendered once.
@@ -27,13 +24,10 @@ fn demonstration() -> &'static Episode {
     static EPISODE: OnceLock<Episode> = OnceLock::new();
     EPISODE.get_or_init(|| {
         let task = tasks::by_name("push_buttons").unwrap();
-        let mut world = tasks::load_world(task.as_ref()).unwrap();
-        let mut rig = CameraRig::new(&world, 64, Visuals::Fast).unwrap();
-        let cameras = vec![rig.camera_index("front").unwrap(), rig.camera_index("left_shoulder").unwrap()];
-        let mut observer = Observer { rig: &mut rig, cameras };
-        let result = run_episode(task.as_ref(), &mut world, 0, 0, Actor::Expert, Some(&mut observer)).unwrap();
-        assert!(result.success);
-        result.to_dataset_episode().unwrap()
+        let episode =
+            collection::demonstration(task.as_ref(), 0, 0, &["front", "left_shoulder"], 64, Visuals::Fast).unwrap();
+        assert!(episode.success);
+        episode
     })
 }
 

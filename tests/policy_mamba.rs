@@ -6,8 +6,8 @@ mod common;
 use candle_core::{D, DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
 use common::{TestResult, randn, reference_scan, rel_err, rng};
-use flowram::policy::network::mamba::{Conditioning, MambaConfig, MambaStack, StackState};
 use flowram::policy::kernels::mamba_ops::{ada_rms_norm, causal_conv_silu, gated_residual, silu_gate};
+use flowram::policy::network::mamba::{Conditioning, MambaConfig, MambaStack, StackState};
 
 const TOL: f32 = 1e-4;
 

@@ -4,7 +4,9 @@
 mod common;
 use candle_core::{DType, Device, Tensor, Var};
 use common::{TestResult, normal, rel_err, tensor};
-use flowram::policy::kernels::selective_scan::{ScanInputs, selective_scan, selective_scan_with_state, selective_scan_with_state_gated};
+use flowram::policy::kernels::selective_scan::{
+    ScanInputs, selective_scan, selective_scan_with_state, selective_scan_with_state_gated,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

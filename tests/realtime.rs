@@ -5,8 +5,7 @@ use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 
 use flowram::control::backend::{Cycle, RobotBackend};
 use flowram::control::osc_config::OscConfig;
-use flowram::control::runner::Runner;
-use flowram::robot::JointLimits;
+use flowram::rollout::stack::build_runner;
 use flowram::sim::World;
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
@@ -38,15 +37,7 @@ static GLOBAL: Counting = Counting;
 #[test]
 fn control_ticks_do_not_allocate() {
     let mut world = World::load_named("default").unwrap();
-    let limits = JointLimits::panda().unwrap();
-    let mut runner = Runner::build(
-        &world.arm_description().unwrap(),
-        limits,
-        OscConfig::default_profile().unwrap(),
-        &world.read_state(),
-        world.timestep(),
-    )
-    .unwrap();
+    let mut runner = build_runner(&world, OscConfig::default_profile().unwrap()).unwrap();
     let home = world.arm_state().tcp_in_base;
     let target = Translation3::new(0.1, -0.1, -0.05) * home * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3);
     let goal = runner.ik.solve(runner.controller.kinematics_mut(), &target, &world.read_state().q).unwrap().q;

@@ -1,7 +1,7 @@
 //! Tasks: instructions follow the paper's templates, experts solve their tasks closed loop,
 //! doing nothing does not succeed, and demonstrations record what the arm really did.
+use flowram::rollout::episode::{Actor, Observer, run_episode};
 use flowram::sim::{CameraRig, Visuals};
-use flowram::tasks::episode::{Actor, Observer, run_episode};
 use flowram::tasks::{self, Task};
 
 fn matches_template(instruction: &str, template: &str, words: &[&str]) -> bool {
@@ -54,12 +54,12 @@ fn instructions_follow_the_templates() {
     assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
 }
 
-fn success_rate(task: &dyn Task, actor: Actor, episodes: u64) -> usize {
+fn success_rate(task: &dyn Task, actor: fn() -> Actor<'static>, episodes: u64) -> usize {
     let mut world = tasks::load_world(task).unwrap();
     (0..episodes)
         .filter(|&seed| {
             let variation = (seed as usize * 7) % task.variation_count();
-            run_episode(task, &mut world, variation, seed, actor, None).unwrap().success
+            run_episode(task, &mut world, variation, seed, actor(), None).unwrap().success
         })
         .count()
 }
@@ -67,41 +67,41 @@ fn success_rate(task: &dyn Task, actor: Actor, episodes: u64) -> usize {
 #[test]
 fn push_buttons_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("push_buttons").unwrap();
-    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
     assert!(expert >= 9, "expert solved {expert}/10");
-    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
 }
 
 #[test]
 fn close_jar_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("close_jar").unwrap();
-    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
     assert!(expert >= 9, "expert solved {expert}/10");
-    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
 }
 
 #[test]
 fn stack_blocks_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("stack_blocks").unwrap();
-    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
     assert!(expert >= 9, "expert solved {expert}/10");
-    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
 }
 
 #[test]
 fn slide_block_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("slide_block").unwrap();
-    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
     assert!(expert >= 9, "expert solved {expert}/10");
-    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
 }
 
 #[test]
 fn open_drawer_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("open_drawer").unwrap();
-    let expert = success_rate(task.as_ref(), Actor::Expert, 10);
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
     assert!(expert >= 9, "expert solved {expert}/10");
-    assert_eq!(success_rate(task.as_ref(), Actor::Idle { seconds: 2 }, 10), 0);
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
 }
 
 #[test]

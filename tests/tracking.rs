@@ -2,20 +2,19 @@
 //! torque, torque-rate, joint-position or joint-velocity limit is exceeded anywhere in a run
 //! (checked on every logged tick, not only by the runner's own monitor).
 use flowram::control::backend::{Cycle, RobotBackend};
-use flowram::control::osc_config::OscConfig;
 use flowram::control::keyframe::Keyframe;
 use flowram::control::monitor::LogRow;
+use flowram::control::osc_config::OscConfig;
 use flowram::control::runner::Runner;
 use flowram::robot::JointLimits;
+use flowram::rollout::stack::build_runner;
 use flowram::sim::World;
 use nalgebra::{Translation3, UnitQuaternion, Vector3};
 
 fn stack(world: &World) -> (Runner, JointLimits) {
     let limits = JointLimits::panda().unwrap();
     let config = OscConfig::default_profile().unwrap();
-    let mut runner =
-        Runner::build(&world.arm_description().unwrap(), limits, config, &world.read_state(), world.timestep())
-            .unwrap();
+    let mut runner = build_runner(world, config).unwrap();
     runner.enable_log(60.0, world.timestep());
     (runner, limits)
 }

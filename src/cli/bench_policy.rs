@@ -14,6 +14,7 @@ use flowram::policy::training::trainer::Trainer;
 use flowram::rollout::collection::demonstration;
 use flowram::rollout::evaluation::{Errors, SuccessOptions, heldout_errors, success_rates};
 use flowram::rollout::learned::DEFAULT_CAMERAS;
+use flowram::sim::Visuals;
 use flowram::stats::median;
 use flowram::tasks;
 use serde::Serialize;
@@ -94,7 +95,7 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
     // A real observation: the open_drawer scene from all four cameras, and its demonstration
     // (for the training step).
     let task = tasks::by_name("open_drawer")?;
-    let episode = demonstration(task.as_ref(), 0, 0, &DEFAULT_CAMERAS, config.observation.image_size)
+    let episode = demonstration(task.as_ref(), 0, 0, &DEFAULT_CAMERAS, config.observation.image_size, Visuals::Full)
         .context("rendering the benchmark's observation")?;
     let observation = Observation::from_episode(&episode, 0)?;
     policy.prepare(&observation)?; // caches the instruction's embedding, as in a closed loop

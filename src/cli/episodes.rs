@@ -6,8 +6,8 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use flowram::files::write_atomic;
 use flowram::rollout::collection::{self, CollectOptions};
-use flowram::rollout::evaluation::EvaluationProgress;
 use flowram::rollout::episode::{Actor, run_episode};
+use flowram::rollout::evaluation::EvaluationProgress;
 use flowram::rollout::learned::policy_episode;
 use flowram::sim::image;
 use flowram::tasks;
@@ -84,7 +84,15 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         ActorKind::Flowram => {
             let mut actor = args.learned.load_actor()?;
             let learned = &args.learned;
-            policy_episode(&mut actor, task.as_ref(), &mut world, variation, args.seed, &learned.cameras, learned.max_keyframes)?
+            policy_episode(
+                &mut actor,
+                task.as_ref(),
+                &mut world,
+                variation,
+                args.seed,
+                &learned.cameras,
+                learned.max_keyframes,
+            )?
         }
     };
     let seconds = start.elapsed().as_secs_f64();

@@ -198,4 +198,3 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
     println!("  {:.0} ms", seconds * 1e3);
     Ok(())
 }
-

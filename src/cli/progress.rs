@@ -39,7 +39,10 @@ impl TaskBar {
 
 impl EvaluationProgress for TaskBar {
     fn started(&mut self, group: &str, total: usize) {
-        let template = format!("{{spinner}} {{msg}} [{{bar:30}}] {{pos}}/{{len}} {}, {{elapsed_precise}} (eta {{eta}})", self.unit);
+        let template = format!(
+            "{{spinner}} {{msg}} [{{bar:30}}] {{pos}}/{{len}} {}, {{elapsed_precise}} (eta {{eta}})",
+            self.unit
+        );
         let b = bar(&template, total as u64);
         b.set_message(group.to_string());
         self.bar = Some(b);

@@ -15,14 +15,14 @@ use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::checkpoint::weights::load_model_weights;
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::flow::{euler_sample, sample_source_noise};
-use crate::policy::scene::radius_schedule::RadiusSchedule;
-use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
 use crate::policy::flow::ACTION_DIMS;
+use crate::policy::flow::{euler_sample, sample_source_noise};
+use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
 use crate::policy::network::model::{EncodedObservation, FlowRam, device};
-use crate::policy::scene::observation::{KeyframePose, Observation};
-use crate::policy::runtime::in_pool;
 use crate::policy::network::text_encoder::TextEncoder;
+use crate::policy::runtime::in_pool;
+use crate::policy::scene::observation::{KeyframePose, Observation};
+use crate::policy::scene::radius_schedule::RadiusSchedule;
 
 /// How to sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -85,7 +85,10 @@ impl Policy {
     /// A randomly initialised model (benchmarks).
     pub fn random(config: &PolicyConfig, text: TextEncoder) -> Result<Self> {
         let varmap = VarMap::new();
-        let model = FlowRam::new(config, crate::policy::network::init::seeded_var_builder(&varmap, config.train.seed, &device()))?;
+        let model = FlowRam::new(
+            config,
+            crate::policy::network::init::seeded_var_builder(&varmap, config.train.seed, &device()),
+        )?;
         Ok(Self { model, text, checkpoint: None })
     }
 

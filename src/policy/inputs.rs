@@ -6,12 +6,12 @@ use candle_core::{DType, Tensor};
 
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::scene::radius_schedule::{RadiusSchedule, select_geometric_tokens_cached};
 use crate::policy::network::model::{PrefixInputs, SuffixInputs};
 use crate::policy::network::text_encoder::TEXT_HIDDEN_SIZE;
-use crate::policy::scene::observation::{Observation, SceneCloud, lift_scene, proprio_features};
-use crate::policy::scene::token_order::sort_far_to_near;
 use crate::policy::network::text_encoder::TextEncoder;
+use crate::policy::scene::observation::{Observation, SceneCloud, lift_scene, proprio_features};
+use crate::policy::scene::radius_schedule::{RadiusSchedule, select_geometric_tokens_cached};
+use crate::policy::scene::token_order::sort_far_to_near;
 
 /// An observation turned into what the network needs (everything that does not depend on the
 /// network's weights, computed once per observation).

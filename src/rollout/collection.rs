@@ -93,17 +93,19 @@ pub fn collect(
     })
 }
 
-/// One expert demonstration of `task` (variation, seed) seen by `cameras` at `size` pixels, as a
-/// dataset episode (what benchmarks and tests train and predict on).
+/// One expert demonstration of `task` (variation, seed) seen by `cameras` at `size` pixels with
+/// the arm drawn as `visuals`, as a dataset episode (what benchmarks and tests train and predict
+/// on; its `success` says whether the expert succeeded).
 pub fn demonstration(
     task: &dyn Task,
     variation: usize,
     seed: u64,
     cameras: &[&str],
     size: usize,
+    visuals: Visuals,
 ) -> Result<Episode, RolloutError> {
     let mut world: World = tasks::load_world(task)?;
-    let mut rig = CameraRig::new(&world, size, Visuals::Full)?;
+    let mut rig = CameraRig::new(&world, size, visuals)?;
     let cameras = cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
     let mut observer = Observer { rig: &mut rig, cameras };
     let result = run_episode(task, &mut world, variation, seed, Actor::Expert, Some(&mut observer))?;

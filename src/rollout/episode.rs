@@ -186,7 +186,12 @@ fn execute(
 /// Resets the world and the task (seeded), builds the control stack and lets the objects
 /// settle while the controller holds the arm. Returns the task state, the runner and the start
 /// time.
-fn begin(task: &dyn Task, world: &mut World, variation: usize, seed: u64) -> Result<(TaskState, Runner, f64), RolloutError> {
+fn begin(
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+) -> Result<(TaskState, Runner, f64), RolloutError> {
     if variation >= task.variation_count() {
         return Err(TaskError::BadVariation { task: task.name(), variation, max: task.variation_count() - 1 }.into());
     }

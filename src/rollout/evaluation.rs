@@ -80,8 +80,15 @@ pub fn success_rates(
             let seed = options.seed + i as u64;
             let variation = seed as usize % task.variation_count();
             let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
-            let result =
-                learned_episode(actor, task.as_ref(), &mut world, variation, seed, &mut observer, options.max_keyframes)?;
+            let result = learned_episode(
+                actor,
+                task.as_ref(),
+                &mut world,
+                variation,
+                seed,
+                &mut observer,
+                options.max_keyframes,
+            )?;
             successes += usize::from(result.success);
             keyframes += result.keyframes;
             reached += result.reached;
@@ -157,9 +164,7 @@ fn summarise(rows: &[KeyframeError]) -> Errors {
 
 /// The mean keyframe of `episodes` (mean position, chordal-mean rotation, majority gripper);
 /// `None` when they hold no keyframes.
-pub fn mean_keyframe<'a>(
-    episodes: impl Iterator<Item = &'a Episode>,
-) -> Result<Option<KeyframePose>, RolloutError> {
+pub fn mean_keyframe<'a>(episodes: impl Iterator<Item = &'a Episode>) -> Result<Option<KeyframePose>, RolloutError> {
     let mut sum = [0f64; 9];
     let (mut count, mut open) = (0usize, 0usize);
     for e in episodes {

@@ -48,7 +48,9 @@ pub enum RolloutError {
     #[error("the policy needs camera frames, but the episode observes no cameras")]
     NoCameras,
     /// The policy sees square frames of one size.
-    #[error("the policy needs square frames of one size; camera {camera} is {width}x{height} (the first is {size}x{size})")]
+    #[error(
+        "the policy needs square frames of one size; camera {camera} is {width}x{height} (the first is {size}x{size})"
+    )]
     FrameSize { camera: String, width: usize, height: usize, size: usize },
     /// The policy returned no keyframe.
     #[error("the policy returned no keyframe")]

@@ -157,8 +157,7 @@ impl CheckpointStore {
         } else {
             None
         };
-        fs::rename(&staging, &final_dir)
-            .map_err(|e| PolicyError::io(&final_dir, "commit (rename staging onto)", e))?;
+        fs::rename(&staging, &final_dir).map_err(|e| PolicyError::io(&final_dir, "commit (rename staging onto)", e))?;
         sync_dir(&self.root)?;
         write_file(&self.root.join(LATEST_FILE), format!("{final_name}\n").as_bytes())?;
         if let Some(old) = displaced {
@@ -200,10 +199,7 @@ pub fn read_checkpoint(dir: &Path, device: &Device) -> Result<StoredCheckpoint> 
     let config: serde_json::Value = serde_json::from_slice(&contents[CONFIG_FILE])
         .map_err(|e| PolicyError::file(&config_path, format!("not valid JSON: {e}")))?;
     let tensors = |name: &str| parse_safetensors(&dir.join(name), &contents[name], device);
-    let tensors = CheckpointTensors {
-        model: tensors(MODEL_FILE)?,
-        ema: tensors(EMA_FILE)?,
-        optimizer: tensors(OPTIMIZER_FILE)?,
-    };
+    let tensors =
+        CheckpointTensors { model: tensors(MODEL_FILE)?, ema: tensors(EMA_FILE)?, optimizer: tensors(OPTIMIZER_FILE)? };
     Ok(StoredCheckpoint { dir: dir.to_path_buf(), config, trainer: trainer.state, tensors })
 }

@@ -8,11 +8,11 @@
 //! modulation operands may be strided views, including stride-0 broadcasts
 //! over L (one AdaLN condition shared by all tokens of a segment).
 
+use crate::policy::error::{PolicyError, Result};
 use crate::policy::kernels::simd::{
     LANES, RowView, contiguous_data, f32_data, lane_sum, madd, map_in_place, silu, silu_grad, simd_kernel,
     with_captured,
 };
-use crate::policy::error::{PolicyError, Result};
 use candle_core::{CpuStorage, CustomOp2, CustomOp3, Layout, Shape, Tensor};
 use rayon::prelude::*;
 

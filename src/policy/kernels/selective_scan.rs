@@ -31,11 +31,11 @@
 //! gradients of every input; B and C gradients are summed over channel
 //! groups afterwards.
 
+use crate::policy::error::{PolicyError, Result};
 use crate::policy::kernels::simd::{
     DisjointWriter, LANES, Lanes, contiguous_data, exp_interleaved, lane_sum, load_lanes, madd, sigmoid, silu,
     simd_kernel, softplus_interleaved, with_captured,
 };
-use crate::policy::error::{PolicyError, Result};
 use candle_core::{CpuStorage, CustomOp3, DType, Device, Layout, Shape, Tensor};
 use rayon::prelude::*;
 

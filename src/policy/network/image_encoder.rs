@@ -33,8 +33,8 @@ use candle_nn::{Init, VarBuilder};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::policy::kernels::conv_ops::{AddUpsampled2, Im2Col, LayerNormSilu, Window};
 use crate::policy::error::{PolicyError, Result};
+use crate::policy::kernels::conv_ops::{AddUpsampled2, Im2Col, LayerNormSilu, Window};
 
 /// Normalisation inside the residual blocks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]

@@ -18,7 +18,9 @@
 
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::kernels::mamba_ops::{ada_rms_norm, causal_conv_silu, gated_residual, silu_gate};
-use crate::policy::kernels::selective_scan::{ScanInputs, selective_scan, selective_scan_with_state, selective_scan_with_state_gated};
+use crate::policy::kernels::selective_scan::{
+    ScanInputs, selective_scan, selective_scan_with_state, selective_scan_with_state_gated,
+};
 use candle_core::{DType, Device, Shape, Tensor};
 use candle_nn::{Init, VarBuilder};
 use serde::{Deserialize, Serialize};

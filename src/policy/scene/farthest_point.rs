@@ -302,7 +302,6 @@ fn update_leaf(xs: &[f32], ys: &[f32], zs: &[f32], dist: &mut [f32], p: [f32; 3]
     lane_max.iter().fold(f32::NEG_INFINITY, |m, &v| if v > m { v } else { m })
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

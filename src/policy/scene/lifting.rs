@@ -165,5 +165,4 @@ mod tests {
         bad_k[0][0] = 0.0;
         assert!(lift_depth(&depth, size, size, &bad_k, &pose, 1).is_err());
     }
-
 }

@@ -4,13 +4,13 @@
 //! that semantic and geometric tokens are drawn from, and the action vector the flow runs on.
 use serde::Serialize;
 
-use crate::policy::error::{PolicyError, Result};
 use super::farthest_point::farthest_point_sample;
 use super::lifting::lift_depth;
 use super::radius_schedule::global_geometric_tokens;
 use super::rotation::{quaternion_from_6d, quaternion_to_6d};
 use super::workspace::WorkspaceBounds;
 use crate::data::Episode;
+use crate::policy::error::{PolicyError, Result};
 
 /// One camera's images and calibration.
 #[derive(Debug, Clone)]

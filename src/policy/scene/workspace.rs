@@ -89,7 +89,6 @@ impl WorkspaceBounds {
     }
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -74,7 +74,6 @@ pub(crate) struct StagedAdamWState {
     moments: Vec<(Vec<f32>, Vec<f32>)>,
 }
 
-
 struct AdamWParam {
     name: String,
     var: Var,
@@ -392,5 +391,4 @@ mod tests {
         let msg = err.to_string();
         assert!(msg.contains("opt.safetensors") && msg.contains("adamw.v.w"), "{msg}");
     }
-
 }

@@ -68,12 +68,12 @@ mod tests {
     use crate::policy::training::adamw::AdamWConfig;
     use crate::policy::training::ema::EmaConfig;
     use crate::policy::training::rng::step_rng;
+    use candle_core::DType;
+    use candle_core::{Device, Tensor};
+    use candle_nn::{Init, VarBuilder};
     use std::collections::BTreeMap;
     use std::fs;
     use std::path::PathBuf;
-    use candle_core::DType;
-    use candle_nn::{Init, VarBuilder};
-    use candle_core::{Device, Tensor};
 
     struct TempDir(PathBuf);
     impl TempDir {

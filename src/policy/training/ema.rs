@@ -12,7 +12,6 @@ use super::named_state::{named_vars, read_counter, read_state_buffer, reject_une
 use crate::policy::checkpoint::format::EMA_UPDATES_TENSOR;
 use crate::policy::error::{PolicyError, Result};
 
-
 /// EMA settings. The paper uses decay 0.9999.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct EmaConfig {
@@ -230,5 +229,4 @@ mod tests {
         let plain = Ema::new(&varmap, EmaConfig { warmup: false, ..Default::default() }).unwrap();
         assert_eq!(plain.decay_for_update(1), 0.9999);
     }
-
 }

@@ -5,8 +5,8 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use crate::policy::training::metrics::MetricsRow;
 use crate::policy::error::{PolicyError, Result};
+use crate::policy::training::metrics::MetricsRow;
 
 /// Draws the loss curve (total loss, L_CFM and L_open against step, log-scale
 /// y) to a PNG of `width` x `height` pixels at `path`, atomically. Rows with
@@ -34,7 +34,7 @@ pub fn plot_loss_curve(rows: &[MetricsRow], path: &Path, width: u32, height: u32
             |tmp| draw_loss_curve(rows, tmp, width, height, false),
             |e| PolicyError::io(path, "write", e),
         )
-            .map_err(|second| file_error(format!("cannot draw the loss curve: {first}; without text: {second}"))),
+        .map_err(|second| file_error(format!("cannot draw the loss curve: {first}; without text: {second}"))),
     }
 }
 

@@ -72,7 +72,12 @@ pub(super) fn read_counter(tensors: &HashMap<String, Tensor>, name: &str, source
 }
 
 /// Fetches `name` from `tensors`, checks it has `shape`, and returns its f32 values.
-pub(super) fn read_state_buffer(tensors: &HashMap<String, Tensor>, name: &str, shape: &Shape, source: &Path) -> Result<Vec<f32>> {
+pub(super) fn read_state_buffer(
+    tensors: &HashMap<String, Tensor>,
+    name: &str,
+    shape: &Shape,
+    source: &Path,
+) -> Result<Vec<f32>> {
     let t = tensors.get(name).ok_or_else(|| PolicyError::File {
         path: source.to_path_buf(),
         message: format!("missing tensor '{name}' (shape {:?}); was it saved for a different model?", shape.dims()),

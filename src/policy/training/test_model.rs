@@ -2,7 +2,6 @@
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{Init, VarBuilder, VarMap};
 
-
 /// A VarMap with w [2] and b [1], initialised to known values.
 pub fn tiny_model() -> (VarMap, Var, Var) {
     let varmap = VarMap::new();
@@ -28,4 +27,3 @@ pub fn loss(w: &Var, b: &Var, k: usize) -> Tensor {
 pub fn values(v: &Var) -> Vec<f32> {
     v.as_tensor().to_vec1().unwrap()
 }
-

@@ -17,7 +17,6 @@ use super::data::TrainingData;
 use super::ema::{Ema, EmaConfig};
 use super::loss_plot::plot_loss_curve;
 use super::lr_schedule::LearningRateSchedule;
-use crate::policy::training::metrics::{MetricsLog, MetricsRow, read_metrics};
 use super::rng::step_rng_for;
 use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
 use crate::policy::checkpoint::store::CheckpointStore;
@@ -30,6 +29,7 @@ use crate::policy::network::model::{FlowRam, device};
 use crate::policy::network::text_encoder::TextEncoder;
 use crate::policy::runtime::in_pool;
 use crate::policy::scene::observation::Observation;
+use crate::policy::training::metrics::{MetricsLog, MetricsRow, read_metrics};
 
 /// The losses of one step (unweighted components and the weighted total).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -122,7 +122,8 @@ impl Trainer {
         let out = self.model.forward(&prefix, &suffix)?;
         let weights = LossWeights { cfm: config.flow.cfm_weight, open: config.flow.open_weight };
         let open_target = Tensor::from_vec(opens, b, &device())?;
-        let (total, cfm, bce) = flow_matching_loss(&out.velocity, &flow.target_velocity, &out.open_logit, &open_target, &weights)?;
+        let (total, cfm, bce) =
+            flow_matching_loss(&out.velocity, &flow.target_velocity, &out.open_logit, &open_target, &weights)?;
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;
         self.step = step;

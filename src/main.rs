@@ -4,5 +4,7 @@ mod cli;
 fn main() -> std::process::ExitCode {
     // Thread pools and malloc thresholds for the policy's CPU speed; see policy::runtime.
     flowram::policy::runtime::configure_process();
+    // MuJoCo's warnings go to stderr (stdout carries --json output).
+    flowram::sim::logging::set_warning_handler(|message| eprintln!("{message}"));
     cli::run()
 }

@@ -80,8 +80,8 @@ pub struct RenderBenchArgs {
     frames: usize,
     #[arg(long, default_value_t = 5)]
     repeats: usize,
-    #[arg(long, value_enum, default_value_t = Visuals::Full)]
-    visuals: Visuals,
+    #[arg(long, value_enum, default_value_t = super::VisualsArg::Full)]
+    visuals: super::VisualsArg,
     #[arg(long)]
     json: bool,
 }
@@ -160,7 +160,7 @@ fn sim(args: SimArgs) -> anyhow::Result<()> {
 fn render(args: RenderBenchArgs) -> anyhow::Result<()> {
     check_counts(args.frames, args.repeats, "frames")?;
     let mut world = World::load_named(&args.scene)?;
-    let mut rig = CameraRig::new(&world, args.size, args.visuals)?;
+    let mut rig = CameraRig::new(&world, args.size, args.visuals.into())?;
     let index = rig.camera_index(&args.camera)?;
     let mut frame = rig.render(&mut world, index)?; // warm-up, and the buffers reused below
     let mut runs = Vec::with_capacity(args.repeats);
@@ -175,7 +175,7 @@ fn render(args: RenderBenchArgs) -> anyhow::Result<()> {
         size: args.size,
         cameras: 1,
         camera: args.camera,
-        visuals: args.visuals,
+        visuals: args.visuals.into(),
         frames_per_s: median(&runs),
         frames: args.frames,
         repeats: args.repeats,

@@ -66,6 +66,24 @@ pub fn run() -> ExitCode {
     }
 }
 
+/// `--visuals`: what the renderer draws for the robot (see `flowram::sim::Visuals`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum VisualsArg {
+    /// The Panda's full visual meshes (about 135k faces): what the paper's images look like.
+    Full,
+    /// Collision meshes as their convex hulls: several times faster on a software renderer.
+    Fast,
+}
+
+impl From<VisualsArg> for flowram::sim::Visuals {
+    fn from(v: VisualsArg) -> Self {
+        match v {
+            VisualsArg::Full => Self::Full,
+            VisualsArg::Fast => Self::Fast,
+        }
+    }
+}
+
 /// Prints a serializable value as one line of JSON.
 fn print_json(value: &impl serde::Serialize) -> anyhow::Result<()> {
     println!("{}", serde_json::to_string(value)?);

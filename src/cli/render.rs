@@ -24,8 +24,8 @@ pub struct RenderArgs {
     #[arg(long)]
     out: PathBuf,
     /// Arm meshes: full visual meshes, or convex hulls (faster on a software renderer).
-    #[arg(long, value_enum, default_value_t = Visuals::Full)]
-    visuals: Visuals,
+    #[arg(long, value_enum, default_value_t = super::VisualsArg::Full)]
+    visuals: super::VisualsArg,
     /// Keep only cloud points inside the table workspace box.
     #[arg(long)]
     crop: bool,
@@ -61,7 +61,7 @@ struct CameraJson<'a> {
 pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let start = Instant::now();
     let mut world = World::load_named(&args.scene)?;
-    let mut rig = CameraRig::new(&world, args.size, args.visuals)?;
+    let mut rig = CameraRig::new(&world, args.size, args.visuals.into())?;
     let indices: Vec<usize> = if args.camera == "all" {
         (0..rig.camera_names().count()).collect()
     } else {
@@ -86,7 +86,7 @@ pub fn run(args: RenderArgs) -> anyhow::Result<()> {
     let report = RenderReport {
         scene: world.scene_path().display().to_string(),
         size: args.size,
-        visuals: args.visuals,
+        visuals: args.visuals.into(),
         cameras,
         files,
         points: merged.len(),

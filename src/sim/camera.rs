@@ -44,7 +44,7 @@ impl Intrinsics {
 }
 
 /// What the renderer draws for the robot.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize, clap::ValueEnum)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Visuals {
     /// The Panda's full visual meshes (about 135k faces): what the paper's images look like.

@@ -8,7 +8,7 @@ pub mod camera;
 pub mod cloud;
 mod error;
 pub mod image;
-mod logging;
+pub mod logging;
 pub mod recorder;
 pub mod scene;
 pub mod world;

@@ -1,6 +1,5 @@
 //! flowram: a FlowRAM keyframe policy and a real-time torque-control stack for a
 //! MuJoCo-simulated Franka Panda. See README.md.
-pub mod config;
 pub mod control;
 pub mod data;
 pub mod deps;
@@ -11,3 +10,4 @@ pub mod rollout;
 pub mod sim;
 pub mod stats;
 pub mod tasks;
+pub mod unit_config;

@@ -2,10 +2,10 @@
 //! unknown key gives an error naming the field; units are converted.
 use std::path::Path;
 
-use flowram::config::ConfigFile;
 use flowram::control::osc_config::OscConfig;
 use flowram::deps::controllers_dir;
 use flowram::robot::JointLimits;
+use flowram::unit_config::ConfigFile;
 
 fn osc_text() -> String {
     std::fs::read_to_string(controllers_dir().join("osc.toml")).unwrap()

@@ -3,6 +3,7 @@
 use std::sync::OnceLock;
 
 use flowram::data::Episode;
+use flowram::policy::PolicyError;
 use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
@@ -116,11 +117,10 @@ fn checkpoint_round_trip_and_truncation() {
     assert_ne!(a, other, "another noise seed gives other samples");
 
     // A new run refuses to overwrite, and a truncated checkpoint is named.
-    let err = train(run.path(), Some(&config), &mut data, &mut self::text(), false, None, &mut Quiet)
-        .err()
-        .unwrap()
-        .to_string();
-    assert!(err.contains("--resume"), "{err}");
+    // (a typed error: the CLI words it with its flags, --resume or another --out)
+    let err = train(run.path(), Some(&config), &mut data, &mut self::text(), false, None, &mut Quiet).err().unwrap();
+    assert!(matches!(err, PolicyError::RunHasCheckpoints { .. }), "{err}");
+    assert!(err.to_string().contains("already has checkpoints"), "{err}");
     let step = run.path().join("checkpoints/step-000000003");
     let model = step.join("ema.safetensors");
     let bytes = std::fs::read(&model).unwrap();

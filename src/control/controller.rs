@@ -5,7 +5,7 @@
 use std::time::{Duration, Instant};
 
 use super::backend::{Command, RobotState};
-use super::osc::{JointFriction, Osc, OscOutput, OscSetupError, TaskReference};
+use super::osc::{JointFriction, Osc, OscSetupError, TaskReference};
 use super::osc_config::OscConfig;
 use super::trajectory::{JointSetpoint, JointTrajectory, MotionLimits};
 use crate::robot::{JointLimits, JointVector, Kinematics};
@@ -33,7 +33,6 @@ pub struct ArmController {
     gripper_open: bool,
     reference: JointSetpoint,
     task: Option<TaskReference>,
-    last: Option<OscOutput>,
     tcp: nalgebra::Isometry3<f64>,
     timing: TickTiming,
     faults: TickFaults,
@@ -67,7 +66,6 @@ impl ArmController {
             gripper_open: state.gripper_width > 0.04,
             reference: JointSetpoint { q: state.q, dq: JointVector::zeros(), ddq: JointVector::zeros() },
             task: None,
-            last: None,
             tcp,
             timing: TickTiming::default(),
             faults: TickFaults::default(),
@@ -106,11 +104,6 @@ impl ArmController {
     /// The Cartesian reference of the last tick.
     pub fn task_reference(&self) -> Option<&TaskReference> {
         self.task.as_ref()
-    }
-
-    /// The OSC's output of the last tick (torque, pose error, fallback flag).
-    pub fn last_output(&self) -> Option<&OscOutput> {
-        self.last.as_ref()
     }
 
     /// The measured TCP pose at the last tick (base frame).
@@ -163,7 +156,6 @@ impl ArmController {
             }
         };
         let t3 = Instant::now();
-        self.last = Some(output);
         self.timing = TickTiming { trajectory: t1 - t0, kinematics: t2 - t1, osc: t3 - t2, total: t3 - t0 };
         Command { tau: output.tau, gripper_open: self.gripper_open }
     }

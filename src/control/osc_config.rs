@@ -4,8 +4,8 @@ use std::path::Path;
 
 use nalgebra::Vector3;
 
-use crate::config::{ConfigError, ConfigFile, Quantity, Sign};
 use crate::robot::JointVector;
+use crate::unit_config::{ConfigError, ConfigFile, Quantity, Sign};
 
 /// Gains of one 3-D part of the task (position or orientation).
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -119,7 +119,7 @@ impl PolicyConfig {
         let bad = |field: &str, expected: &str, got: String| {
             Err(PolicyError::Invalid(format!("policy config: {field} must be {expected}; got {got}")))
         };
-        if o.image_size == 0 || o.feature_stride == 0 || o.image_size % o.feature_stride != 0 {
+        if o.image_size == 0 || o.feature_stride == 0 || !o.image_size.is_multiple_of(o.feature_stride) {
             return bad(
                 "observation.feature_stride",
                 "positive and divide observation.image_size",
@@ -145,7 +145,7 @@ impl PolicyConfig {
                 return bad(field, "positive", v.to_string());
             }
         }
-        if self.model.channels % 6 != 0 {
+        if !self.model.channels.is_multiple_of(6) {
             return bad(
                 "model.channels",
                 "a multiple of 6 (the 3D positional encoding uses sin and cos per axis)",

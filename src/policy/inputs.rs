@@ -105,8 +105,8 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
             xyz.extend(shifted(s.cloud.points_norm[k], aug.shift));
         }
         let mut p = s.proprio;
-        for a in 0..3 {
-            p[a] += aug.shift[a];
+        for (p, shift) in p.iter_mut().zip(aug.shift) {
+            *p += shift;
         }
         proprio.extend(p);
         language.push(s.language.clone());

@@ -2,8 +2,8 @@
 //! read from `controllers/panda_limits.toml` and validated.
 use std::path::Path;
 
-use crate::config::{ConfigError, ConfigFile, Quantity, Sign};
 use crate::robot::JointVector;
+use crate::unit_config::{ConfigError, ConfigFile, Quantity, Sign};
 
 /// Joint-space limits of a 7-DoF arm, SI units; velocity and above are symmetric magnitudes.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -135,9 +135,10 @@ pub fn run_episode(
     let mut gripper_open = true;
     for k in 0..budget {
         let observation = observe(world, observer.as_deref_mut(), gripper_open)?;
-        let keyframe = match &mut actor {
-            Actor::Policy { policy, .. } => policy.next_keyframe(&instruction, k, &observation)?,
-            _ => planned[k],
+        let keyframe = match (&mut actor, planned.get(k)) {
+            (Actor::Policy { policy, .. }, _) => policy.next_keyframe(&instruction, k, &observation)?,
+            (_, Some(keyframe)) => *keyframe,
+            (_, None) => break,
         };
         result.observations.push(observation);
         execute(task, world, &mut runner, &base, k, &keyframe, &mut state, &mut result)?;

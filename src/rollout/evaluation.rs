@@ -171,11 +171,8 @@ pub fn mean_keyframe<'a>(episodes: impl Iterator<Item = &'a Episode>) -> Result<
         for k in 0..e.keyframes() {
             let a = Observation::episode_action(e, k);
             let r = quaternion_to_6d(a.quat_wxyz)?;
-            for i in 0..3 {
-                sum[i] += f64::from(a.position[i]);
-            }
-            for i in 0..6 {
-                sum[3 + i] += f64::from(r[i]);
+            for (s, v) in sum.iter_mut().zip(a.position.iter().chain(&r)) {
+                *s += f64::from(*v);
             }
             count += 1;
             open += usize::from(a.gripper_open);

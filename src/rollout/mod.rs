@@ -15,7 +15,6 @@ pub mod evaluation;
 pub mod learned;
 pub mod stack;
 
-use crate::config::ConfigError;
 use crate::control::backend::BackendError;
 use crate::control::ik::IkError;
 use crate::control::runner::StackError;
@@ -23,6 +22,7 @@ use crate::data::DataError;
 use crate::policy::PolicyError;
 use crate::sim::SimError;
 use crate::tasks::TaskError;
+use crate::unit_config::ConfigError;
 
 /// What can go wrong running episodes and evaluations.
 #[derive(Debug, thiserror::Error)]

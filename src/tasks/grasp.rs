@@ -19,12 +19,6 @@ pub fn horizontal(approach: &Vector3<f64>) -> UnitQuaternion<f64> {
     UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(Matrix3::from_columns(&[x, y, z])))
 }
 
-/// As [`horizontal`], rolled half a turn about the approach (TCP x = world down): the wrist
-/// (link 6) then sits above the hand instead of below it, for grasps close to the table.
-pub fn horizontal_wrist_up(approach: &Vector3<f64>) -> UnitQuaternion<f64> {
-    horizontal(approach) * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI)
-}
-
 /// A keyframe at a world position and orientation.
 pub fn keyframe(position: Vector3<f64>, rotation: UnitQuaternion<f64>, gripper_open: bool) -> Keyframe {
     Keyframe::at(&Isometry3::from_parts(Translation3::from(position), rotation), gripper_open)

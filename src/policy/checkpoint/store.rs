@@ -94,10 +94,10 @@ impl CheckpointStore {
         for entry in entries {
             let entry = entry.map_err(|e| PolicyError::io(&self.root, "list", e))?;
             let name = entry.file_name();
-            if let Some(step) = parse_step_dir(&name.to_string_lossy()) {
-                if entry.path().join(TRAINER_FILE).is_file() {
-                    out.push((step, entry.path()));
-                }
+            if let Some(step) = parse_step_dir(&name.to_string_lossy())
+                && entry.path().join(TRAINER_FILE).is_file()
+            {
+                out.push((step, entry.path()));
             }
         }
         out.sort();

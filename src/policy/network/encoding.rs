@@ -109,7 +109,7 @@ fn sin_cos(a: f32) -> (f32, f32) {
 /// Sinusoidal embedding of the flow time t in [0, 1] (as DiT, with t scaled by 1000):
 /// [B] -> [B, C], half sines, half cosines, periods from 2 pi / 1000 to 2 pi * 10.
 pub fn time_embedding(t: &Tensor, channels: usize) -> Result<Tensor> {
-    if channels % 2 != 0 {
+    if !channels.is_multiple_of(2) {
         return Err(PolicyError::Invalid(format!("time embedding needs an even width, got {channels}")));
     }
     let half = channels / 2;

@@ -25,8 +25,8 @@
 //!
 //! Runtime note (2-core CPU): candle's element-wise ops use their own spinning
 //! thread pool beside rayon's; run with `CANDLE_NUM_THREADS=1` (element-wise
-//! ops on the calling thread, GEMMs still on rayon's threads) — see the
-//! crate's bench_encoder example for measurements.
+//! ops on the calling thread, GEMMs still on rayon's threads); `policy::runtime`
+//! sets it, and `flowram bench policy` times the encoder.
 
 use candle_core::{DType, Tensor};
 use candle_nn::{Init, VarBuilder};
@@ -85,11 +85,6 @@ impl Default for ImageEncoderConfig {
 }
 
 impl ImageEncoderConfig {
-    /// Output feature-map side: `image_size / patch_size`.
-    pub fn feature_size(&self) -> usize {
-        self.image_size / self.patch_size.max(1)
-    }
-
     /// Checks sizes and names the field that is wrong.
     pub fn validate(&self) -> Result<()> {
         let bad = |m: String| Err(PolicyError::Invalid(format!("image encoder config: {m}")));

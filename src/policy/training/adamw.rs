@@ -59,10 +59,10 @@ impl AdamWConfig {
         if !(self.eps.is_finite() && self.eps > 0.0) {
             return bad("eps", self.eps, "a finite value > 0");
         }
-        if let Some(max) = self.max_grad_norm {
-            if !(max.is_finite() && max > 0.0) {
-                return bad("max_grad_norm", max, "a finite value > 0 (or none)");
-            }
+        if let Some(max) = self.max_grad_norm
+            && !(max.is_finite() && max > 0.0)
+        {
+            return bad("max_grad_norm", max, "a finite value > 0 (or none)");
         }
         Ok(())
     }
@@ -145,11 +145,6 @@ impl AdamW {
     /// Steps taken so far.
     pub fn step_count(&self) -> u64 {
         self.step
-    }
-
-    /// Names of the optimised variables, in update order.
-    pub fn var_names(&self) -> impl Iterator<Item = &str> {
-        self.params.iter().map(|p| p.name.as_str())
     }
 
     /// `loss.backward()` then [`AdamW::step`].

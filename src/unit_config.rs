@@ -1,4 +1,4 @@
-//! Reading the project's TOML configuration files (`controllers/*.toml`) with validation.
+//! Unit-carrying TOML configuration files (`controllers/*.toml`), read with validation.
 //!
 //! Physical quantities are written with their unit, so a file says what it means:
 //! `velocity = { values = [2.175, ...], unit = "rad/s" }` or `time = { value = 0.5, unit = "s" }`.
@@ -186,11 +186,6 @@ impl ConfigFile {
             self.check_sign(field, out[i], sign)?;
         }
         Ok(out)
-    }
-
-    pub fn boolean(&mut self, field: &str) -> Result<bool, ConfigError> {
-        let value = self.lookup(field)?.clone();
-        value.as_bool().ok_or_else(|| self.error(field, "expected true or false"))
     }
 
     /// Reports keys of the file that no reader asked for (typos, fields of another version).

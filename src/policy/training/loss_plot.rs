@@ -117,25 +117,14 @@ fn draw_loss_curve(rows: &[MetricsRow], path: &Path, width: u32, height: u32, te
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::training::test_model::{metrics_row as row, tmp_dir};
     use std::fs::{self, File};
-    use std::path::PathBuf;
 
     #[test]
     fn log_axis_labels_are_short() {
         let labels: Vec<String> =
             [1e-6, 9.99999999e-6, 1e-3, 0.1, 1.0, 100.0, 1e4, 0.05].into_iter().map(log_label).collect();
         assert_eq!(labels, ["1e-6", "1e-5", "0.001", "0.1", "1", "100", "1e4", "5.00e-2"]);
-    }
-    fn tmp_dir(tag: &str) -> PathBuf {
-        let p = std::env::temp_dir().join(format!("policy_train_metrics_{tag}_{}", std::process::id()));
-        let _ = fs::remove_dir_all(&p);
-        fs::create_dir_all(&p).unwrap();
-        p
-    }
-
-    fn row(step: u64) -> MetricsRow {
-        let loss = 10.0 / step as f64;
-        MetricsRow { step, loss, cfm: loss * 0.008, bce: loss * 0.02, lr: 1e-4, seconds: step as f64 * 0.5 }
     }
 
     #[test]

@@ -137,19 +137,8 @@ impl MetricsLog {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::training::test_model::{metrics_row as row, tmp_dir};
     use std::fs;
-
-    fn tmp_dir(tag: &str) -> PathBuf {
-        let p = std::env::temp_dir().join(format!("policy_train_metrics_{tag}_{}", std::process::id()));
-        let _ = fs::remove_dir_all(&p);
-        fs::create_dir_all(&p).unwrap();
-        p
-    }
-
-    fn row(step: u64) -> MetricsRow {
-        let loss = 10.0 / step as f64;
-        MetricsRow { step, loss, cfm: loss * 0.008, bce: loss * 0.02, lr: 1e-4, seconds: step as f64 * 0.5 }
-    }
 
     #[test]
     fn csv_resume_drops_rows_after_the_checkpoint() {

@@ -1,4 +1,5 @@
-//! A two-variable model for the optimiser, EMA and checkpoint tests.
+//! Test support: a two-variable model for the optimiser, EMA and checkpoint tests, and metrics
+//! rows and a scratch folder for the metrics and loss-plot tests.
 use candle_core::{DType, Device, Tensor, Var};
 use candle_nn::{Init, VarBuilder, VarMap};
 
@@ -26,4 +27,25 @@ pub fn loss(w: &Var, b: &Var, k: usize) -> Tensor {
 
 pub fn values(v: &Var) -> Vec<f32> {
     v.as_tensor().to_vec1().unwrap()
+}
+
+/// A fresh scratch folder for test `tag`.
+pub fn tmp_dir(tag: &str) -> std::path::PathBuf {
+    let p = std::env::temp_dir().join(format!("policy_train_metrics_{tag}_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&p);
+    std::fs::create_dir_all(&p).unwrap();
+    p
+}
+
+/// A metrics row of a falling loss at `step`.
+pub fn metrics_row(step: u64) -> crate::policy::training::metrics::MetricsRow {
+    let loss = 10.0 / step as f64;
+    crate::policy::training::metrics::MetricsRow {
+        step,
+        loss,
+        cfm: loss * 0.008,
+        bce: loss * 0.02,
+        lr: 1e-4,
+        seconds: step as f64 * 0.5,
+    }
 }

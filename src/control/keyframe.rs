@@ -33,10 +33,10 @@ pub struct KeyframeFile {
 /// Why a keyframes file could not be read.
 #[derive(Debug, thiserror::Error)]
 pub enum KeyframeFileError {
-    #[error("cannot read the keyframes file {}: {source}", path.display())]
+    #[error("cannot read the keyframes file {}", path.display())]
     Read { path: std::path::PathBuf, source: std::io::Error },
     #[error(
-        "{} is not a keyframes file; expected {{\"keyframes\":[{{\"position\":[x,y,z],\"quat_wxyz\":[w,x,y,z],\"gripper_open\":true}}, ...]}}: {source}",
+        "{} is not a keyframes file; expected {{\"keyframes\":[{{\"position\":[x,y,z],\"quat_wxyz\":[w,x,y,z],\"gripper_open\":true}}, ...]}}",
         path.display()
     )]
     Format { path: std::path::PathBuf, source: serde_json::Error },

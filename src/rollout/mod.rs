@@ -33,7 +33,7 @@ pub enum RolloutError {
     Sim(#[from] SimError),
     #[error(transparent)]
     Config(#[from] ConfigError),
-    #[error("building the control stack: {0}")]
+    #[error("building the control stack")]
     Stack(#[from] StackError),
     #[error(transparent)]
     Backend(#[from] BackendError),
@@ -42,7 +42,7 @@ pub enum RolloutError {
     #[error(transparent)]
     Data(#[from] DataError),
     /// A keyframe that cannot be a target pose (non-finite position, zero quaternion).
-    #[error("keyframe {index} is not a valid pose: {source}")]
+    #[error("keyframe {index} is not a valid pose")]
     InvalidKeyframe { index: usize, source: IkError },
     /// A learned policy was asked to act without camera frames to look at.
     #[error("the policy needs camera frames, but the episode observes no cameras")]

@@ -157,7 +157,7 @@ pub fn suffix_inputs(
             o.min_inside,
             schedule,
         )?;
-        // scan order: farthest to nearest, the action token after the nearest (see `serialization`)
+        // scan order: farthest to nearest, the action token after the nearest (see `scene::token_order`)
         let mut indices = selection.indices;
         sort_far_to_near(&s.cloud.points_norm, center.map(|v| v.clamp(-1.0, 1.0)), &mut indices);
         for &k in &indices {

@@ -14,7 +14,7 @@
 //! - geometric: features at N2 points sampled around the noisy action position with the
 //!   radius schedule r(t) (DRS), plus the encodings of their position and of their offset from
 //!   the action position; from the farthest to the nearest to the action position (see
-//!   `serialization`);
+//!   `scene::token_order`);
 //! - action: the noisy action a_t (normalised position + 6D rotation) projected to C, plus the
 //!   encoding of its position.
 //!

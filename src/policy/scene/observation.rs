@@ -176,7 +176,7 @@ pub fn lift_scene(
     } else {
         (0..cloud.points_norm.len()).cycle().take(n1).collect()
     };
-    // scan order: along a Z-order curve (see `serialization`)
+    // scan order: along a Z-order curve (see `scene::token_order`)
     crate::policy::scene::token_order::sort_by_morton(&cloud.points_norm, &mut cloud.semantic);
     cloud.geometric_global = global_geometric_tokens(&cloud.points_norm, n2)?;
     Ok(cloud)

@@ -53,14 +53,6 @@ impl Deps {
         self.file("the Franka hand model (panda_hand.xml)", "panda/panda_hand.xml")
     }
 
-    /// The Panda URDF of example-robot-data (for Pinocchio).
-    pub fn panda_urdf(&self) -> Result<PathBuf, MissingDependency> {
-        self.file(
-            "the Panda URDF (example-robot-data)",
-            "venv/lib/python3.11/site-packages/cmeel.prefix/share/example-robot-data/robots/panda_description/urdf/panda.urdf",
-        )
-    }
-
     /// Folder with all-MiniLM-L6-v2's `model.safetensors`, `config.json`, `tokenizer.json`.
     pub fn minilm_dir(&self) -> Result<PathBuf, MissingDependency> {
         self.file("the all-MiniLM-L6-v2 weights", "minilm/model.safetensors")

@@ -9,7 +9,7 @@ use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
 use flowram::rollout::RolloutError;
 use flowram::rollout::episode::{Actor, KeyframeObservation, KeyframePolicy, Observer, run_episode};
-use flowram::rollout::learned::{FlowRamActor, learned_episode, policy_observation};
+use flowram::rollout::learned::{FlowRamActor, policy_observation};
 use flowram::sim::{CameraRig, Visuals};
 use flowram::tasks::{self, TaskError};
 
@@ -113,7 +113,15 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     let mut rig = CameraRig::new(&world, 48, Visuals::Fast).unwrap();
     let cameras = vec![rig.camera_index("front").unwrap(), rig.camera_index("left_shoulder").unwrap()];
     let mut observer = Observer { rig: &mut rig, cameras };
-    let result = learned_episode(&mut actor, task.as_ref(), &mut world, 0, 1, &mut observer, 2).unwrap();
+    let result = run_episode(
+        task.as_ref(),
+        &mut world,
+        0,
+        1,
+        Actor::Policy { policy: &mut actor, max_keyframes: 2 },
+        Some(&mut observer),
+    )
+    .unwrap();
     // an untrained policy does not slide the block: both keyframes were asked for and executed
     assert!(!result.success);
     assert_eq!(result.keyframes, 2);
@@ -127,6 +135,14 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     // the noise seed advances per keyframe, so two predictions from similar observations differ
     assert_ne!(result.actions[0], result.actions[1]);
     // and restarts per episode: the same seeded episode again gives the same keyframes
-    let again = learned_episode(&mut actor, task.as_ref(), &mut world, 0, 1, &mut observer, 2).unwrap();
+    let again = run_episode(
+        task.as_ref(),
+        &mut world,
+        0,
+        1,
+        Actor::Policy { policy: &mut actor, max_keyframes: 2 },
+        Some(&mut observer),
+    )
+    .unwrap();
     assert_eq!(again.actions, result.actions);
 }

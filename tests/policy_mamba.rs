@@ -1,13 +1,12 @@
 //! The fused block ops and the Mamba stack against references built from
 //! ordinary candle ops (autodiff for gradients), the cached prefix against the
 //! whole sequence, and the initialisation and checkpoint format.
-#[path = "policy_reference/mod.rs"]
-mod common;
+mod policy_reference;
 use candle_core::{D, DType, Device, Tensor, Var};
 use candle_nn::{VarBuilder, VarMap};
-use common::{TestResult, randn, reference_scan, rel_err, rng};
 use flowram::policy::kernels::mamba_ops::{ada_rms_norm, causal_conv_silu, gated_residual, silu_gate};
 use flowram::policy::network::mamba::{Conditioning, MambaConfig, MambaStack, StackState};
+use policy_reference::{TestResult, randn, reference_scan, rel_err, rng};
 
 const TOL: f32 = 1e-4;
 

@@ -1,12 +1,11 @@
 //! The selective-scan op against a naive reference built from ordinary candle
 //! ops (an L-step loop; candle autodiff for its gradients).
-#[path = "policy_reference/mod.rs"]
-mod common;
+mod policy_reference;
 use candle_core::{DType, Device, Tensor, Var};
-use common::{TestResult, normal, rel_err, tensor};
 use flowram::policy::kernels::selective_scan::{
     ScanInputs, selective_scan, selective_scan_with_state, selective_scan_with_state_gated,
 };
+use policy_reference::{TestResult, normal, rel_err, tensor};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -62,7 +61,7 @@ impl Case {
 }
 
 fn reference_scan(x: &ScanInputs, h0: Option<&Tensor>) -> candle_core::Result<(Tensor, Tensor)> {
-    common::reference_scan(x.u, x.delta_raw, x.b, x.c, x.a, x.d, x.delta_bias, h0)
+    policy_reference::reference_scan(x.u, x.delta_raw, x.b, x.c, x.a, x.d, x.delta_bias, h0)
 }
 
 fn check_forward_backward(seed: u64, batch: usize, seq_len: usize, d_inner: usize, d_state: usize) -> TestResult {

@@ -6,10 +6,9 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use flowram::files::write_atomic;
 use flowram::rollout::collection::{self, CollectOptions};
-use flowram::rollout::episode::{Actor, run_episode};
-use flowram::rollout::evaluation::EvaluationProgress;
-use flowram::rollout::learned::policy_episode;
-use flowram::sim::image;
+use flowram::rollout::episode::{Actor, Observer, camera_rig, run_episode};
+use flowram::rollout::learned::DEFAULT_CAMERAS;
+use flowram::sim::{Visuals, image};
 use flowram::tasks;
 use serde::Serialize;
 
@@ -83,16 +82,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         }
         ActorKind::Flowram => {
             let mut actor = args.learned.load_actor()?;
-            let learned = &args.learned;
-            policy_episode(
-                &mut actor,
-                task.as_ref(),
-                &mut world,
-                variation,
-                args.seed,
-                &learned.cameras,
-                learned.max_keyframes,
-            )?
+            let size = actor.policy.config().observation.image_size;
+            let (mut rig, cameras) = camera_rig(&world, size, Visuals::Full, &args.learned.cameras)?;
+            let policy = Actor::Policy { policy: &mut actor, max_keyframes: args.learned.max_keyframes };
+            let mut observer = Observer { rig: &mut rig, cameras };
+            run_episode(task.as_ref(), &mut world, variation, args.seed, policy, Some(&mut observer))?
         }
     };
     let seconds = start.elapsed().as_secs_f64();
@@ -145,7 +139,7 @@ pub struct CollectArgs {
     /// Dataset folder (created, or extended if it holds the same task, cameras and size).
     #[arg(long)]
     out: PathBuf,
-    #[arg(long, value_delimiter = ',', default_value = "front,left_shoulder,right_shoulder,wrist")]
+    #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_CAMERAS.map(String::from))]
     cameras: Vec<String>,
     #[arg(long, default_value_t = flowram::sim::camera::DEFAULT_IMAGE_SIZE)]
     size: usize,
@@ -168,7 +162,7 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
     };
     let mut bar = TaskBar::for_collection(task.name(), args.episodes);
     let report = collection::collect(task.as_ref(), &args.out, &options, &mut bar)?;
-    bar.finished();
+    bar.finish();
     if args.json {
         super::print_json(&report)?;
     } else {

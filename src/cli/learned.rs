@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::Args;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
-use flowram::rollout::learned::FlowRamActor;
+use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
 
 /// How a learned policy runs closed loop.
 #[derive(Debug, Args)]
@@ -24,7 +24,7 @@ pub struct LearnedArgs {
     #[arg(long, default_value_t = 10)]
     pub max_keyframes: usize,
     /// Cameras the policy sees, in the training datasets' order.
-    #[arg(long, value_delimiter = ',', default_value = "front,left_shoulder,right_shoulder,wrist")]
+    #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_CAMERAS.map(String::from))]
     pub cameras: Vec<String>,
 }
 

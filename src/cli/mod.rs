@@ -71,7 +71,8 @@ pub fn run() -> ExitCode {
 enum VisualsArg {
     /// The Panda's full visual meshes (about 135k faces): what the paper's images look like.
     Full,
-    /// Collision meshes as their convex hulls: several times faster on a software renderer.
+    /// Collision meshes as their convex hulls (a few hundred faces per link): several times
+    /// faster on a software renderer, coarser arm silhouettes, identical everything else.
     Fast,
 }
 

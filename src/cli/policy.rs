@@ -1,4 +1,4 @@
-//! `flowram train`, `flowram predict` and `flowram bench policy`.
+//! `flowram train` and `flowram predict`.
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -17,11 +17,11 @@ use super::progress::TrainBar;
 
 /// Loads training datasets, reporting the episode files it had to skip.
 pub fn load_training_data(dirs: &[PathBuf]) -> anyhow::Result<TrainingData> {
-    let data = TrainingData::load(dirs)?;
-    for (path, reason) in data.skipped() {
+    let read = TrainingData::read_datasets(dirs)?;
+    for (path, reason) in &read.skipped {
         eprintln!("warning: skipping {}: {reason}", path.display());
     }
-    Ok(data)
+    Ok(TrainingData::from_episodes(read.episodes)?)
 }
 
 #[derive(Debug, Args)]
@@ -72,7 +72,7 @@ pub fn train_cmd(args: TrainArgs) -> anyhow::Result<()> {
         Err(e @ PolicyError::RunHasCheckpoints { .. }) => {
             bail!("{e}: pass --resume to continue it, or choose another --out")
         }
-        Err(e @ PolicyError::NoCheckpoint { .. }) => bail!("{e}: leave out --resume"),
+        Err(e @ PolicyError::NoCheckpoint { .. }) => bail!("{e}: start the run without --resume"),
         Err(e) => return Err(e.into()),
     };
     bar.0.finish();

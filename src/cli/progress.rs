@@ -28,6 +28,13 @@ impl TaskBar {
         b
     }
 
+    /// Removes the bar.
+    pub fn finish(&mut self) {
+        if let Some(b) = self.bar.take() {
+            b.finish_and_clear();
+        }
+    }
+
     /// Prints a line above the bar.
     pub fn println(&self, line: String) {
         match &self.bar {
@@ -55,9 +62,7 @@ impl EvaluationProgress for TaskBar {
     }
 
     fn finished(&mut self) {
-        if let Some(b) = self.bar.take() {
-            b.finish_and_clear();
-        }
+        self.finish();
     }
 }
 

@@ -18,11 +18,11 @@ pub enum PolicyError {
     #[error(transparent)]
     MissingDependency(#[from] crate::deps::MissingDependency),
     /// A new training run was started in a folder that already holds checkpoints.
-    #[error("{}: this run already has checkpoints; resume it, or train into another folder", run.display())]
+    #[error("{}: this run already has checkpoints", run.display())]
     RunHasCheckpoints { run: PathBuf },
-    /// A run was to be resumed, but its folder holds no committed checkpoint.
-    #[error("{}: no checkpoint to resume from; start the run afresh", run.display())]
-    NoCheckpoint { run: PathBuf },
+    /// A run was to be resumed, but its checkpoint folder holds no committed checkpoint.
+    #[error("{}: no checkpoint to resume from", checkpoints.display())]
+    NoCheckpoint { checkpoints: PathBuf },
 }
 
 pub type Result<T> = std::result::Result<T, PolicyError>;

@@ -15,13 +15,7 @@ use rand::Rng;
 use serde::{Deserialize, Serialize};
 
 use crate::policy::error::{PolicyError, Result};
-
-/// Position dimensions of the flowed action (normalised to the workspace, [-1, 1]).
-pub const POSITION_DIMS: usize = 3;
-/// 6D rotation dimensions of the flowed action (first two rotation-matrix columns).
-pub const ROTATION_DIMS: usize = 6;
-/// All flowed dimensions: `POSITION_DIMS + ROTATION_DIMS`.
-pub const ACTION_DIMS: usize = POSITION_DIMS + ROTATION_DIMS;
+use crate::policy::scene::observation::ACTION_DIMS;
 
 /// Weights of the two loss terms (supplementary Table B: L_CFM 100, L_open 10).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -254,8 +248,6 @@ where
     }
     Ok(a)
 }
-
-// Workspace normalisation and 6D rotations live in `scene::workspace` and `scene::rotation`.
 
 #[cfg(test)]
 mod tests {

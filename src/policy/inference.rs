@@ -15,13 +15,12 @@ use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::checkpoint::weights::load_model_weights;
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::flow::ACTION_DIMS;
 use crate::policy::flow::{euler_sample, sample_source_noise};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
 use crate::policy::network::model::{EncodedObservation, FlowRam, device};
 use crate::policy::network::text_encoder::TextEncoder;
 use crate::policy::runtime::in_pool;
-use crate::policy::scene::observation::{KeyframePose, Observation};
+use crate::policy::scene::observation::{ACTION_DIMS, KeyframePose, Observation};
 use crate::policy::scene::radius_schedule::RadiusSchedule;
 
 /// How to sample.
@@ -153,7 +152,8 @@ impl Policy {
         let shared = vec![0usize; s];
         let mut open = None;
         let a = euler_sample(a0, options.steps, |a, t| {
-            let rows: Vec<[f32; 9]> = a.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
+            let rows: Vec<[f32; ACTION_DIMS]> =
+                a.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
             let t0 = Instant::now();
             let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
             let t1 = Instant::now();

@@ -7,9 +7,8 @@ use candle_core::{DType, Tensor};
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::network::model::{PrefixInputs, SuffixInputs};
-use crate::policy::network::text_encoder::TEXT_HIDDEN_SIZE;
-use crate::policy::network::text_encoder::TextEncoder;
-use crate::policy::scene::observation::{Observation, SceneCloud, lift_scene, proprio_features};
+use crate::policy::network::text_encoder::{TEXT_HIDDEN_SIZE, TextEncoder};
+use crate::policy::scene::observation::{ACTION_DIMS, Observation, SceneCloud, lift_scene, proprio_features};
 use crate::policy::scene::radius_schedule::{RadiusSchedule, select_geometric_tokens_cached};
 use crate::policy::scene::token_order::sort_far_to_near;
 
@@ -130,7 +129,7 @@ pub fn suffix_inputs(
     config: &PolicyConfig,
     samples: &[(&PreparedObservation, Augmentation)],
     feature_sample: &[usize],
-    actions: &[[f32; 9]],
+    actions: &[[f32; ACTION_DIMS]],
     t: &[f32],
     schedule: &RadiusSchedule,
 ) -> Result<SuffixInputs> {

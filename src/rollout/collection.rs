@@ -6,9 +6,9 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::RolloutError;
-use super::episode::{Actor, Observer, run_episode};
+use super::episode::{Actor, Observer, camera_rig, run_episode};
 use crate::data::{Dataset, Episode};
-use crate::sim::{CameraRig, Visuals, World};
+use crate::sim::Visuals;
 use crate::tasks::{self, Task};
 
 /// What [`collect`] did.
@@ -60,8 +60,7 @@ pub fn collect(
         return Err(RolloutError::Zero { what: "the episodes to collect" });
     }
     let mut world = tasks::load_world(task)?;
-    let mut rig = CameraRig::new(&world, options.size, Visuals::Full)?;
-    let cameras = options.cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
+    let (mut rig, cameras) = camera_rig(&world, options.size, Visuals::Full, &options.cameras)?;
     let mut writer = Dataset::create_or_open(out, task.name(), &options.cameras, [options.size, options.size])?;
     let start = Instant::now();
     let (mut attempts, mut successes, mut keyframes) = (0usize, 0usize, 0usize);
@@ -75,7 +74,7 @@ pub fn collect(
             progress.failed(seed, result.reached, result.keyframes);
             continue;
         }
-        let episode = result.to_dataset_episode().ok_or(RolloutError::NoCameras)?;
+        let episode = result.to_dataset_episode().ok_or(RolloutError::NoImages)?;
         writer.append(&episode)?;
         successes += 1;
         keyframes += result.keyframes;
@@ -104,10 +103,9 @@ pub fn demonstration(
     size: usize,
     visuals: Visuals,
 ) -> Result<Episode, RolloutError> {
-    let mut world: World = tasks::load_world(task)?;
-    let mut rig = CameraRig::new(&world, size, visuals)?;
-    let cameras = cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
+    let mut world = tasks::load_world(task)?;
+    let (mut rig, cameras) = camera_rig(&world, size, visuals, cameras)?;
     let mut observer = Observer { rig: &mut rig, cameras };
     let result = run_episode(task, &mut world, variation, seed, Actor::Expert, Some(&mut observer))?;
-    result.to_dataset_episode().ok_or(RolloutError::NoCameras)
+    result.to_dataset_episode().ok_or(RolloutError::NoImages)
 }

@@ -15,7 +15,7 @@ use crate::control::keyframe::Keyframe;
 use crate::control::osc_config::OscConfig;
 use crate::control::runner::Runner;
 use crate::robot::JointVector;
-use crate::sim::{CameraRig, RgbdFrame, World};
+use crate::sim::{CameraRig, RgbdFrame, Visuals, World};
 use crate::tasks::{Task, TaskError, TaskState};
 
 /// A task's episode: what reset chose, and what happened so far.
@@ -87,6 +87,19 @@ pub struct Observer<'a> {
     pub cameras: Vec<usize>,
 }
 
+/// A camera rig for `world` (square images of `size` pixels, the arm drawn as `visuals`) and
+/// the indices of the cameras named `cameras` in it, in that order.
+pub fn camera_rig(
+    world: &World,
+    size: usize,
+    visuals: Visuals,
+    cameras: &[impl AsRef<str>],
+) -> Result<(CameraRig, Vec<usize>), RolloutError> {
+    let rig = CameraRig::new(world, size, visuals)?;
+    let indices = cameras.iter().map(|c| rig.camera_index(c.as_ref())).collect::<Result<Vec<_>, _>>()?;
+    Ok((rig, indices))
+}
+
 /// Settling time after reset, before the first keyframe (objects come to rest).
 const SETTLE_S: f64 = 0.3;
 
@@ -100,8 +113,13 @@ pub fn run_episode(
     mut actor: Actor<'_>,
     mut observer: Option<&mut Observer<'_>>,
 ) -> Result<EpisodeResult, RolloutError> {
-    if matches!(actor, Actor::Policy { .. }) && observer.as_ref().is_none_or(|o| o.cameras.is_empty()) {
-        return Err(RolloutError::NoCameras);
+    if let Actor::Policy { max_keyframes, .. } = actor {
+        if max_keyframes == 0 {
+            return Err(RolloutError::Zero { what: "the keyframes per episode" });
+        }
+        if observer.as_ref().is_none_or(|o| o.cameras.is_empty()) {
+            return Err(RolloutError::NoCameras);
+        }
     }
     let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
     let base = world.base_pose();
@@ -224,15 +242,19 @@ fn in_base(base: &Isometry3<f64>, k: usize, keyframe: &Keyframe) -> Result<Keyfr
     Ok(Keyframe::at(&(base.inverse() * pose), keyframe.gripper_open))
 }
 
+/// A keyframe in the dataset layout of `proprio`: position, quaternion w x y z, gripper open.
 fn proprio_of(k: &Keyframe) -> [f32; 8] {
     let (p, q) = (k.position, k.quat_wxyz);
     [p[0], p[1], p[2], q[0], q[1], q[2], q[3], if k.gripper_open { 1.0 } else { 0.0 }].map(|v| v as f32)
 }
 
+/// The TCP pose now (world frame) and the gripper state, in the layout of `proprio`.
 fn tcp_proprio(world: &World, gripper_open: bool) -> [f32; 8] {
     proprio_of(&Keyframe::at(&world.tcp_pose(), gripper_open))
 }
 
+/// The observation before a keyframe: the observer's camera frames (none without an observer)
+/// and the proprioception.
 fn observe(
     world: &mut World,
     cameras: Option<&mut Observer<'_>>,
@@ -246,6 +268,7 @@ fn observe(
     }
     Ok(KeyframeObservation { frames, proprio: tcp_proprio(world, gripper_open) })
 }
+
 impl EpisodeResult {
     /// The episode as a dataset record (needs observations with images).
     pub fn to_dataset_episode(&self) -> Option<crate::data::Episode> {

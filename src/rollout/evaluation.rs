@@ -8,13 +8,14 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::RolloutError;
-use super::episode::Observer;
-use super::learned::{FlowRamActor, learned_episode, policy_rig};
+use super::episode::{Actor, Observer, camera_rig, run_episode};
+use super::learned::FlowRamActor;
 use crate::data::Episode;
 use crate::policy::inference::{Policy, SamplingOptions};
 use crate::policy::scene::observation::{KeyframePose, Observation};
 use crate::policy::scene::rotation::{quaternion_from_6d, quaternion_to_6d};
 use crate::policy::training::data::TrainingData;
+use crate::sim::Visuals;
 use crate::stats::median;
 use crate::tasks::{self, Task};
 
@@ -69,26 +70,23 @@ pub fn success_rates(
     if options.episodes == 0 {
         return Err(RolloutError::Zero { what: "the episodes per task" });
     }
+    if options.max_keyframes == 0 {
+        return Err(RolloutError::Zero { what: "the keyframes per episode" });
+    }
     let mut reports = Vec::with_capacity(task_list.len());
     for task in task_list {
         let mut world = tasks::load_world(task.as_ref())?;
         actor.inference_ms.clear();
-        let (mut rig, cameras) = policy_rig(&actor.policy, &world, &options.cameras)?;
+        let size = actor.policy.config().observation.image_size;
+        let (mut rig, cameras) = camera_rig(&world, size, Visuals::Full, &options.cameras)?;
         progress.started(task.name(), options.episodes);
         let (mut successes, mut keyframes, mut reached) = (0usize, 0usize, 0usize);
         for i in 0..options.episodes {
             let seed = options.seed + i as u64;
             let variation = seed as usize % task.variation_count();
             let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
-            let result = learned_episode(
-                actor,
-                task.as_ref(),
-                &mut world,
-                variation,
-                seed,
-                &mut observer,
-                options.max_keyframes,
-            )?;
+            let policy = Actor::Policy { policy: &mut *actor, max_keyframes: options.max_keyframes };
+            let result = run_episode(task.as_ref(), &mut world, variation, seed, policy, Some(&mut observer))?;
             successes += usize::from(result.success);
             keyframes += result.keyframes;
             reached += result.reached;

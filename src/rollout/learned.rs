@@ -1,15 +1,12 @@
 //! A trained FlowRAM checkpoint as an episode's actor ([`KeyframePolicy`]): the observer's RGB-D
-//! frames, the proprioception and the instruction in, the first sampled keyframe out; and the
-//! camera rig it looks through.
+//! frames, the proprioception and the instruction in, the first sampled keyframe out.
 use std::time::Instant;
 
 use super::RolloutError;
-use super::episode::{Actor, EpisodeResult, KeyframeObservation, KeyframePolicy, Observer, run_episode};
+use super::episode::{KeyframeObservation, KeyframePolicy};
 use crate::control::keyframe::Keyframe;
 use crate::policy::inference::{Policy, SamplingOptions};
 use crate::policy::scene::observation::{CameraView, Observation};
-use crate::sim::{CameraRig, Visuals, World};
-use crate::tasks::Task;
 
 /// The cameras the policies here are trained with, in the datasets' order.
 pub const DEFAULT_CAMERAS: [&str; 4] = ["front", "left_shoulder", "right_shoulder", "wrist"];
@@ -77,44 +74,4 @@ pub fn policy_observation(instruction: &str, observation: &KeyframeObservation) 
         });
     }
     Ok(Observation { size, cameras, proprio: observation.proprio, instruction: instruction.to_string() })
-}
-
-/// A camera rig for `world` at the image size the policy was trained on, and the indices of
-/// `cameras` in it.
-pub fn policy_rig(policy: &Policy, world: &World, cameras: &[String]) -> Result<(CameraRig, Vec<usize>), RolloutError> {
-    let rig = CameraRig::new(world, policy.config().observation.image_size, Visuals::Full)?;
-    let indices = cameras.iter().map(|c| rig.camera_index(c)).collect::<Result<Vec<_>, _>>()?;
-    Ok((rig, indices))
-}
-
-/// One closed-loop episode of `actor` on `task`, seen through `cameras` (names, in the training
-/// datasets' order), for at most `max_keyframes` keyframes.
-pub fn policy_episode(
-    actor: &mut FlowRamActor,
-    task: &dyn Task,
-    world: &mut World,
-    variation: usize,
-    seed: u64,
-    cameras: &[String],
-    max_keyframes: usize,
-) -> Result<EpisodeResult, RolloutError> {
-    let (mut rig, indices) = policy_rig(&actor.policy, world, cameras)?;
-    let mut observer = Observer { rig: &mut rig, cameras: indices };
-    learned_episode(actor, task, world, variation, seed, &mut observer, max_keyframes)
-}
-
-/// [`policy_episode`] with a rig already built (for many episodes in one world).
-pub fn learned_episode(
-    actor: &mut FlowRamActor,
-    task: &dyn Task,
-    world: &mut World,
-    variation: usize,
-    seed: u64,
-    observer: &mut Observer<'_>,
-    max_keyframes: usize,
-) -> Result<EpisodeResult, RolloutError> {
-    if max_keyframes == 0 {
-        return Err(RolloutError::Zero { what: "the keyframes per episode" });
-    }
-    run_episode(task, world, variation, seed, Actor::Policy { policy: actor, max_keyframes }, Some(observer))
 }

@@ -52,6 +52,9 @@ pub enum RolloutError {
         "the policy needs square frames of one size; camera {camera} is {width}x{height} (the first is {size}x{size})"
     )]
     FrameSize { camera: String, width: usize, height: usize, size: usize },
+    /// An episode to be saved as a demonstration recorded no images (no cameras, or no keyframes).
+    #[error("the episode recorded no images")]
+    NoImages,
     /// The policy returned no keyframe.
     #[error("the policy returned no keyframe")]
     NoKeyframe,

@@ -3,7 +3,7 @@
 //! paper's Table A), a seeded reset that randomises object placement within documented ranges,
 //! a success check on the simulator state, and an expert that computes keyframes (TCP pose +
 //! gripper) from the object poses, like RLBench's waypoints. Task definitions only: the
-//! closed loop that runs them (with the expert or a learned policy) is `crate::rollout`.
+//! closed loop that runs them (with the expert or a learned policy) is the `rollout` module.
 pub mod close_jar;
 pub mod colors;
 pub mod grasp;

@@ -116,8 +116,9 @@ pub(super) fn read_trainer_file(dir: &Path) -> Result<(TrainerFile, HashMap<&'st
     Ok((trainer, contents))
 }
 
-/// A checkpoint's `config.json` as plain JSON.
-pub fn read_config_json(dir: &Path) -> Result<serde_json::Value> {
+/// A checkpoint's `config.json` as plain JSON (the tests' configs are not policy configs).
+#[cfg(test)]
+pub(crate) fn read_config_json(dir: &Path) -> Result<serde_json::Value> {
     let path = dir.join(CONFIG_FILE);
     let bytes = fs::read(&path).map_err(|e| PolicyError::io(&path, "read", e))?;
     serde_json::from_slice(&bytes).map_err(|e| PolicyError::file(&path, format!("not valid JSON: {e}")))

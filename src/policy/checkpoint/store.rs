@@ -83,10 +83,6 @@ impl CheckpointStore {
         self
     }
 
-    pub fn root(&self) -> &Path {
-        &self.root
-    }
-
     /// Committed checkpoints (those with a `trainer.json`), oldest first.
     pub fn committed(&self) -> Result<Vec<(u64, PathBuf)>> {
         let entries = fs::read_dir(&self.root).map_err(|e| PolicyError::io(&self.root, "list", e))?;

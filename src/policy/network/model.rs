@@ -28,11 +28,11 @@ use candle_nn::{Linear, Module, VarBuilder};
 
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::flow::ACTION_DIMS;
 use crate::policy::network::encoding::{positional_encoding, time_embedding};
 use crate::policy::network::image_encoder::{ImageEncoder, ImageEncoderConfig};
 use crate::policy::network::mamba::{Conditioning, MambaConfig, MambaStack, StackState};
 use crate::policy::network::text_encoder::TEXT_HIDDEN_SIZE;
+use crate::policy::scene::observation::ACTION_DIMS;
 
 /// Proprioception features: normalised position, 6D rotation, gripper open.
 pub const PROPRIO_DIMS: usize = 10;

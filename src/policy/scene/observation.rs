@@ -12,6 +12,13 @@ use super::workspace::WorkspaceBounds;
 use crate::data::Episode;
 use crate::policy::error::{PolicyError, Result};
 
+/// Position dimensions of the flowed action (normalised to the workspace, [-1, 1]).
+pub const POSITION_DIMS: usize = 3;
+/// 6D rotation dimensions of the flowed action (first two rotation-matrix columns).
+pub const ROTATION_DIMS: usize = 6;
+/// All flowed dimensions: `POSITION_DIMS + ROTATION_DIMS`.
+pub const ACTION_DIMS: usize = POSITION_DIMS + ROTATION_DIMS;
+
 /// One camera's images and calibration.
 #[derive(Debug, Clone)]
 pub struct CameraView {
@@ -52,10 +59,10 @@ impl KeyframePose {
         Self { position: [v[0], v[1], v[2]], quat_wxyz: [v[3], v[4], v[5], v[6]], gripper_open: v[7] > 0.5 }
     }
 
-    /// The 9 continuous action dimensions the flow runs on: position normalised to the
+    /// The [`ACTION_DIMS`] continuous action dimensions the flow runs on: position normalised to the
     /// workspace ([-1, 1] per axis), then the 6D rotation (the rotation matrix's first two
     /// columns).
-    pub fn to_action(&self, workspace: &WorkspaceBounds) -> Result<[f32; 9]> {
+    pub fn to_action(&self, workspace: &WorkspaceBounds) -> Result<[f32; ACTION_DIMS]> {
         let p = workspace.normalize(self.position);
         let r = quaternion_to_6d(self.quat_wxyz)?;
         Ok([p[0], p[1], p[2], r[0], r[1], r[2], r[3], r[4], r[5]])
@@ -63,7 +70,7 @@ impl KeyframePose {
 
     /// Back from the action vector (rotation re-orthonormalised by Gram-Schmidt) and the
     /// gripper-open logit.
-    pub fn from_action(a: &[f32; 9], open_logit: f32, workspace: &WorkspaceBounds) -> Self {
+    pub fn from_action(a: &[f32; ACTION_DIMS], open_logit: f32, workspace: &WorkspaceBounds) -> Self {
         let position = workspace.denormalize([a[0], a[1], a[2]]);
         let quat_wxyz = quaternion_from_6d([a[3], a[4], a[5], a[6], a[7], a[8]]);
         Self { position, quat_wxyz, gripper_open: open_logit > 0.0 }

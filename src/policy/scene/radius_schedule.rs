@@ -10,10 +10,6 @@ use crate::policy::error::{PolicyError, Result};
 /// radius around any point of the box covers the whole box.
 pub const GLOBAL_RADIUS: f32 = 3.464_101_6; // 2 * sqrt(3)
 
-/// A suggested `min_inside` for [`select_geometric_tokens`]: with fewer points near the action
-/// the local region says little, and global sampling is used instead.
-pub const DEFAULT_MIN_INSIDE: usize = 64;
-
 /// Raw form of [`RadiusSchedule`] for deserialisation (validated on conversion).
 #[derive(Deserialize)]
 #[serde(tag = "kind", rename_all = "snake_case", deny_unknown_fields)]

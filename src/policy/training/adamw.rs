@@ -298,7 +298,7 @@ mod tests {
     use super::*;
     use crate::policy::checkpoint::format::OPTIMIZER_PREFIX;
     use crate::policy::checkpoint::weights::{read_safetensors, write_safetensors};
-    use crate::policy::training::test_model::{loss, tiny_model, values};
+    use crate::policy::training::test_support::{loss, tiny_model, values};
 
     #[test]
     fn adamw_matches_hand_computation() {

@@ -299,8 +299,8 @@ mod tests {
             };
             let encoder = crate::policy::network::image_encoder::ImageEncoder::new(cfg, vb.pp("encoder")).unwrap();
             let head = candle_nn::linear(
-                8 + crate::policy::flow::ACTION_DIMS + 1,
-                crate::policy::flow::ACTION_DIMS + 1,
+                8 + crate::policy::scene::observation::ACTION_DIMS + 1,
+                crate::policy::scene::observation::ACTION_DIMS + 1,
                 vb.pp("head"),
             )
             .unwrap();
@@ -319,9 +319,8 @@ mod tests {
             opt: &mut AdamW,
             ema: &mut Ema,
         ) -> f32 {
-            use crate::policy::flow::{
-                ACTION_DIMS, FlowTimeSampling, LossWeights, flow_matching_loss, flow_training_sample,
-            };
+            use crate::policy::flow::{FlowTimeSampling, LossWeights, flow_matching_loss, flow_training_sample};
+            use crate::policy::scene::observation::ACTION_DIMS;
             let mut rng = step_rng(seed, step);
             let sample = flow_training_sample(a1, &mut rng, FlowTimeSampling::Uniform).unwrap();
             let feats = self.encoder.forward_channels_last(images).unwrap().mean((1, 2)).unwrap();
@@ -348,7 +347,7 @@ mod tests {
             &dev,
         )
         .unwrap();
-        let a1 = Tensor::randn(0f32, 0.5, (4, crate::policy::flow::ACTION_DIMS), &dev).unwrap();
+        let a1 = Tensor::randn(0f32, 0.5, (4, crate::policy::scene::observation::ACTION_DIMS), &dev).unwrap();
         let open = Tensor::new(&[1f32, 0.0, 1.0, 0.0], &dev).unwrap();
         let seed = 1234;
         let opt_cfg = AdamWConfig { learning_rate: 1e-3, max_grad_norm: Some(1.0), ..Default::default() };

@@ -21,31 +21,34 @@ pub(super) struct SampleRef {
     pub(super) k: usize,
 }
 
+/// The episodes read from dataset folders, and the episode files that could not be read.
+pub struct DatasetEpisodes {
+    pub episodes: Vec<Episode>,
+    /// Episode files skipped, with the reason.
+    pub skipped: Vec<(PathBuf, String)>,
+}
+
 /// Demonstrations grouped by task and variation, with observations prepared lazily (and kept).
 pub struct TrainingData {
     episodes: Vec<Episode>,
     /// task -> variation -> episode indices.
     groups: BTreeMap<String, BTreeMap<usize, Vec<usize>>>,
     prepared: Vec<Vec<Option<Arc<PreparedObservation>>>>,
-    /// Episode files of the datasets that could not be read, with the reason.
-    skipped: Vec<(PathBuf, String)>,
 }
 
 impl TrainingData {
-    /// Loads dataset folders. Episode files that fail to load are skipped and listed in
-    /// [`TrainingData::skipped`] (for the caller to report).
-    pub fn load(dirs: &[PathBuf]) -> Result<Self> {
-        let mut episodes = Vec::new();
-        let mut skipped = Vec::new();
+    /// Reads the episodes of dataset folders for [`TrainingData::from_episodes`]. Episode files
+    /// that fail to load are skipped and listed in [`DatasetEpisodes::skipped`] (for the caller
+    /// to report before the episodes are checked).
+    pub fn read_datasets(dirs: &[PathBuf]) -> Result<DatasetEpisodes> {
+        let mut read = DatasetEpisodes { episodes: Vec::new(), skipped: Vec::new() };
         for dir in dirs {
             let loaded = crate::data::load_dataset(dir)
                 .map_err(|e| PolicyError::File { path: dir.clone(), message: e.to_string() })?;
-            skipped.extend(loaded.failures.into_iter().map(|(path, e)| (path, e.to_string())));
-            episodes.extend(loaded.episodes);
+            read.skipped.extend(loaded.failures.into_iter().map(|(path, e)| (path, e.to_string())));
+            read.episodes.extend(loaded.episodes);
         }
-        let mut data = Self::from_episodes(episodes)?;
-        data.skipped = skipped;
-        Ok(data)
+        Ok(read)
     }
 
     pub fn from_episodes(episodes: Vec<Episode>) -> Result<Self> {
@@ -67,12 +70,7 @@ impl TrainingData {
             groups.entry(e.task.clone()).or_default().entry(e.variation).or_default().push(i);
         }
         let prepared = episodes.iter().map(|e| vec![None; e.keyframes()]).collect();
-        Ok(Self { episodes, groups, prepared, skipped: Vec::new() })
-    }
-
-    /// Episode files [`TrainingData::load`] could not read, with the reason.
-    pub fn skipped(&self) -> &[(PathBuf, String)] {
-        &self.skipped
+        Ok(Self { episodes, groups, prepared })
     }
 
     pub fn episodes(&self) -> &[Episode] {

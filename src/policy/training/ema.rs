@@ -188,7 +188,7 @@ pub(crate) struct StagedEmaState {
 mod tests {
     use super::*;
     use crate::policy::checkpoint::weights::{read_safetensors, write_safetensors};
-    use crate::policy::training::test_model::{tiny_model, values};
+    use crate::policy::training::test_support::{tiny_model, values};
 
     #[test]
     fn ema_follows_the_formula_and_round_trips() {

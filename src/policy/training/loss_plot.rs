@@ -117,7 +117,7 @@ fn draw_loss_curve(rows: &[MetricsRow], path: &Path, width: u32, height: u32, te
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::policy::training::test_model::{metrics_row as row, tmp_dir};
+    use crate::policy::training::test_support::{metrics_row as row, tmp_dir};
     use std::fs::{self, File};
 
     #[test]

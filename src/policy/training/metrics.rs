@@ -137,7 +137,7 @@ impl MetricsLog {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::policy::training::test_model::{metrics_row as row, tmp_dir};
+    use crate::policy::training::test_support::{metrics_row as row, tmp_dir};
     use std::fs;
 
     #[test]

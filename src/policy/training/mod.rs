@@ -11,5 +11,5 @@ pub mod metrics;
 mod named_state;
 pub mod rng;
 #[cfg(test)]
-pub(crate) mod test_model;
+pub(crate) mod test_support;
 pub mod trainer;

@@ -22,13 +22,13 @@ use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
 use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::flow::{ACTION_DIMS, FlowTimeSampling, LossWeights, flow_matching_loss, flow_training_sample};
+use crate::policy::flow::{FlowTimeSampling, LossWeights, flow_matching_loss, flow_training_sample};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, suffix_inputs};
 use crate::policy::network::init::seeded_var_builder;
 use crate::policy::network::model::{FlowRam, device};
 use crate::policy::network::text_encoder::TextEncoder;
 use crate::policy::runtime::in_pool;
-use crate::policy::scene::observation::Observation;
+use crate::policy::scene::observation::{ACTION_DIMS, Observation};
 use crate::policy::training::metrics::{MetricsLog, MetricsRow, read_metrics};
 
 /// The losses of one step (unweighted components and the weighted total).
@@ -155,7 +155,7 @@ impl Trainer {
     /// Resumes from the latest checkpoint of a run (its stored config wins).
     pub fn resume(run: &Path) -> Result<Self> {
         let store = CheckpointStore::open(run.join("checkpoints"))?;
-        let dir = store.latest()?.ok_or_else(|| PolicyError::NoCheckpoint { run: run.to_path_buf() })?;
+        let dir = store.latest()?.ok_or_else(|| PolicyError::NoCheckpoint { checkpoints: run.join("checkpoints") })?;
         let config = read_checkpoint_config(&dir)?;
         let mut trainer = Self::new(&config)?;
         let loaded = load_checkpoint(&dir, &trainer.varmap, &mut trainer.ema, &mut trainer.optimizer)?;

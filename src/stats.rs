@@ -11,9 +11,36 @@ pub fn median(values: &[f64]) -> f64 {
     if n % 2 == 1 { v[n / 2] } else { 0.5 * (v[n / 2 - 1] + v[n / 2]) }
 }
 
+/// The 95 % Wilson score interval of a success rate: `successes` of `trials` (both bounds 0 for
+/// no trials). Unlike the normal approximation it stays inside [0, 1] and is informative at 0 or
+/// `trials` successes, which small closed-loop evaluations often give.
+pub fn wilson_interval(successes: usize, trials: usize) -> [f64; 2] {
+    if trials == 0 {
+        return [0.0, 0.0];
+    }
+    const Z: f64 = 1.959_963_984_540_054; // the 97.5 % quantile of the standard normal
+    let n = trials as f64;
+    let p = successes as f64 / n;
+    let z2 = Z * Z;
+    let centre = (p + z2 / (2.0 * n)) / (1.0 + z2 / n);
+    let half = Z / (1.0 + z2 / n) * (p * (1.0 - p) / n + z2 / (4.0 * n * n)).sqrt();
+    [(centre - half).max(0.0), (centre + half).min(1.0)]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn wilson_interval_matches_published_values() {
+        // 8 of 10: [0.490, 0.943]; 0 of 10: [0, 0.278]; 50 of 50: [0.929, 1] (Wilson 1927 /
+        // any statistics table).
+        let close = |a: [f64; 2], b: [f64; 2]| (a[0] - b[0]).abs() < 1e-3 && (a[1] - b[1]).abs() < 1e-3;
+        assert!(close(wilson_interval(8, 10), [0.490, 0.943]), "{:?}", wilson_interval(8, 10));
+        assert!(close(wilson_interval(0, 10), [0.0, 0.278]), "{:?}", wilson_interval(0, 10));
+        assert!(close(wilson_interval(50, 50), [0.929, 1.0]), "{:?}", wilson_interval(50, 50));
+        assert_eq!(wilson_interval(0, 0), [0.0, 0.0]);
+    }
 
     #[test]
     fn median_of_odd_even_and_empty() {

@@ -172,3 +172,36 @@ impl PredictOnce for Policy {
             .collect()
     }
 }
+
+#[test]
+fn the_instruction_reaches_the_adaln_condition_only_when_configured() {
+    let episode = demonstration();
+    let observation = Observation::from_episode(episode, 0).unwrap();
+    let other = Observation { instruction: "push the red button".into(), ..observation.clone() };
+    assert_ne!(other.instruction, observation.instruction);
+    let condition = |adaln: bool, o: &Observation| -> Vec<f32> {
+        let mut config = tiny_config();
+        config.model.instruction_adaln = adaln;
+        let mut policy = Policy::random(&config, text()).unwrap();
+        let prepared = policy.prepare(o).unwrap();
+        policy.encode(&prepared).unwrap().condition.flatten_all().unwrap().to_vec1().unwrap()
+    };
+    // The paper's conditioning: proprioception only, whatever the instruction says.
+    assert_eq!(condition(false, &observation), condition(false, &other));
+    // With model.instruction_adaln, every block's modulation depends on the instruction.
+    assert_ne!(condition(true, &observation), condition(true, &other));
+}
+
+#[test]
+fn configs_written_before_the_conditioning_options_load_with_the_papers_choices() {
+    // A checkpoint's config.json from before model.instruction_adaln, flow.prediction and
+    // flow.time_sampling existed: it must load, and mean what it meant then.
+    let mut json = serde_json::to_value(tiny_config()).unwrap();
+    json["model"].as_object_mut().unwrap().remove("instruction_adaln");
+    json["flow"].as_object_mut().unwrap().remove("prediction");
+    json["flow"].as_object_mut().unwrap().remove("time_sampling");
+    let config: PolicyConfig = serde_json::from_value(json).unwrap();
+    assert!(!config.model.instruction_adaln);
+    assert_eq!(config.flow.prediction, flowram::policy::flow::Prediction::Velocity);
+    assert_eq!(config.flow.time_sampling, flowram::policy::flow::FlowTimeSampling::Uniform);
+}

@@ -236,10 +236,18 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     line("model", &report.model);
     line("training mean", &report.training_mean);
     line("task mean", &report.task_mean);
+    let swap = |mm: f64, n: usize| {
+        println!(
+            "  {:>13}: the first keyframe moves {mm:.1} mm (median of {n}) when told another variation",
+            "instruction"
+        )
+    };
+    swap(report.instruction_swap_mm, report.instruction_swaps);
     for t in &report.tasks {
         println!("  {} ({} keyframes):", t.task, t.keyframes);
         line("model", &t.model);
         line("task mean", &t.task_mean);
+        swap(t.instruction_swap_mm, t.instruction_swaps);
     }
     Ok(())
 }
@@ -279,11 +287,13 @@ pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
     }
     for r in &reports {
         println!(
-            "{}: {}/{} successes ({:.0} %), {:.1} keyframes per episode, {:.0} % reached, inference {:.0} ms (median)",
+            "{}: {}/{} successes ({:.0} %, 95 % CI {:.0}-{:.0} %), {:.1} keyframes per episode, {:.0} % reached, inference {:.0} ms (median)",
             r.task,
             r.successes,
             r.episodes,
             100.0 * r.success_rate,
+            100.0 * r.success_ci95[0],
+            100.0 * r.success_ci95[1],
             r.keyframes,
             100.0 * r.reached,
             r.inference_ms_median

@@ -6,6 +6,7 @@ use std::path::Path;
 use serde::{Deserialize, Serialize};
 
 use crate::policy::error::{PolicyError, Result};
+use crate::policy::flow::{FlowTimeSampling, Prediction};
 use crate::policy::scene::radius_schedule::RadiusSchedule;
 use crate::policy::scene::workspace::WorkspaceBounds;
 
@@ -53,6 +54,12 @@ pub struct ModelConfig {
     pub expand: usize,
     /// Mamba blocks over [language, semantic, geometric, action].
     pub layers: usize,
+    /// Also modulate every Mamba block (AdaLN, added to the proprioception's embedding) by an
+    /// MLP of the instruction's sentence embedding, so the instruction reaches the action token
+    /// directly, as a class label conditions DiT and FiLM conditions DP3. Off (the paper): the
+    /// instruction is only the first tokens of the scan.
+    #[serde(default)]
+    pub instruction_adaln: bool,
 }
 
 /// Conditional flow matching.
@@ -64,6 +71,14 @@ pub struct FlowConfig {
     /// Loss = cfm_weight * velocity MSE + open_weight * gripper BCE (supplementary: 100, 10).
     pub cfm_weight: f64,
     pub open_weight: f64,
+    /// What the action head predicts: `"velocity"` (Algorithm 1) or `"endpoint"` (the clean
+    /// action a1; the Euler sampler then steps with v = (a1_hat - a_t) / (1 - t)).
+    #[serde(default)]
+    pub prediction: Prediction,
+    /// How training draws the flow time t: `{ kind = "uniform" }` (Algorithm 1) or
+    /// `{ kind = "logit_normal", mean = 0.0, std = 1.0 }`.
+    #[serde(default)]
+    pub time_sampling: FlowTimeSampling,
 }
 
 /// Training.
@@ -153,6 +168,7 @@ impl PolicyConfig {
             );
         }
         self.radius_schedule.validate()?;
+        self.flow.time_sampling.validate()?;
         let t = &self.train;
         for (field, v, ok) in [
             ("flow.cfm_weight", self.flow.cfm_weight, self.flow.cfm_weight >= 0.0),

@@ -62,6 +62,42 @@ impl FlowTimeSampling {
     }
 }
 
+/// What the network's action head predicts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum Prediction {
+    /// The velocity `a1 - a0` of the straight path (Algorithm 1).
+    #[default]
+    Velocity,
+    /// The path's endpoint, the clean action `a1` (DP3's "sample" prediction). The regression
+    /// target does not carry the noise `a0`, so late flow times are not dominated by it; the
+    /// sampler's velocity is `(a1_hat - a_t) / (1 - t)`, which lands on `a1_hat` at the last
+    /// Euler step.
+    Endpoint,
+}
+
+impl Prediction {
+    /// What the head regresses for a training sample with clean actions `a1`.
+    pub fn target(self, sample: &FlowTrainingSample, a1: &Tensor) -> Tensor {
+        match self {
+            Prediction::Velocity => sample.target_velocity.clone(),
+            Prediction::Endpoint => a1.clone(),
+        }
+    }
+
+    /// The velocity at `(a_t, t)` for the Euler sampler from the head's output `out`.
+    pub fn velocity(self, out: Tensor, a_t: &Tensor, t: f32) -> Result<Tensor> {
+        match self {
+            Prediction::Velocity => Ok(out),
+            Prediction::Endpoint => {
+                // Euler steps run t = k / steps < 1; the guard keeps a caller's t = 1 finite.
+                let remaining = f64::from(1.0 - t).max(1e-3);
+                Ok((out - a_t)?.affine(1.0 / remaining, 0.0)?)
+            }
+        }
+    }
+}
+
 /// One standard-normal draw (Box–Muller; deterministic given the RNG).
 pub fn standard_normal<R: Rng + ?Sized>(rng: &mut R) -> f64 {
     // 1 - U[0,1) lies in (0, 1], so the log is finite.
@@ -368,6 +404,28 @@ mod tests {
             let expected: Vec<f32> = (0..steps).map(|k| k as f32 / steps as f32).collect();
             assert_eq!(calls, expected);
         }
+    }
+
+    #[test]
+    fn endpoint_prediction_integrates_to_the_predicted_endpoint() {
+        // A head that predicts the same endpoint at every step: the sampler lands on it exactly
+        // (the last step covers the remaining 1 - t), for any number of steps and any noise.
+        let endpoint = t2(&[0.5, -0.25, 0.9, 0.1, 0.0, -1.0, 0.3, 0.7, -0.6], 1);
+        let a0 = t2(&[1.2, 0.4, -2.0, 0.3, 1.1, -0.4, 0.0, 2.2, -1.3], 1);
+        for steps in [1usize, 2, 8, 16] {
+            let out =
+                euler_sample(a0.clone(), steps, |a, t| Prediction::Endpoint.velocity(endpoint.clone(), a, t)).unwrap();
+            assert!(max_abs_diff(&out, &endpoint) < 1e-5, "steps {steps}");
+        }
+        // Velocity prediction passes the head's output through.
+        let v = Prediction::Velocity.velocity(endpoint.clone(), &a0, 0.5).unwrap();
+        assert_eq!(max_abs_diff(&v, &endpoint), 0.0);
+        // The training targets: a1 - a0 for velocity, a1 for the endpoint.
+        let a1 = t2(&[0.3f32; 2 * ACTION_DIMS], 2);
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let s = flow_training_sample(&a1, &mut rng, FlowTimeSampling::Uniform).unwrap();
+        assert_eq!(max_abs_diff(&Prediction::Velocity.target(&s, &a1), &s.target_velocity), 0.0);
+        assert_eq!(max_abs_diff(&Prediction::Endpoint.target(&s, &a1), &a1), 0.0);
     }
 
     #[test]

@@ -161,7 +161,7 @@ impl Policy {
             profile.selection_ms += (t1 - t0).as_secs_f64() * 1e3;
             profile.network_ms += t1.elapsed().as_secs_f64() * 1e3;
             open = Some(out.open_logit);
-            Ok(out.velocity)
+            config.flow.prediction.velocity(out.velocity, a, t)
         })?;
         // The gripper logit of the last step (closest to the data).
         let open = open.ok_or_else(|| PolicyError::Invalid("sampling ran no Euler step".into()))?;

@@ -23,6 +23,8 @@ pub struct PreparedObservation {
     pub proprio: [f32; 10],
     /// [Lt, 384] instruction token features, zero-padded or truncated to Lt.
     pub language: Tensor,
+    /// The instruction's sentence embedding (384, L2-normalised mean of the token features).
+    pub instruction: Vec<f32>,
 }
 
 /// Per-sample augmentation: a shift of the scene (normalised workspace units, added to points,
@@ -68,7 +70,14 @@ pub fn prepare(
             0,
         )?;
     }
-    Ok(PreparedObservation { images, cameras: observation.cameras.len(), cloud, proprio, language })
+    Ok(PreparedObservation {
+        images,
+        cameras: observation.cameras.len(),
+        cloud,
+        proprio,
+        language,
+        instruction: features.embedding.clone(),
+    })
 }
 
 fn shifted(p: [f32; 3], s: [f32; 3]) -> [f32; 3] {
@@ -90,6 +99,7 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
     let mut xyz = Vec::with_capacity(b * n1 * 3);
     let mut proprio = Vec::with_capacity(b * 10);
     let mut language = Vec::with_capacity(b);
+    let mut instruction = Vec::with_capacity(b * TEXT_HIDDEN_SIZE);
     for (i, (s, aug)) in samples.iter().enumerate() {
         if s.cameras != cams || s.images.len() != first.images.len() {
             return Err(PolicyError::Invalid("every sample of a batch needs the same cameras and image size".into()));
@@ -109,6 +119,7 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
         }
         proprio.extend(p);
         language.push(s.language.clone());
+        instruction.extend_from_slice(&s.instruction);
     }
     let device = first.language.device();
     Ok(PrefixInputs {
@@ -117,6 +128,7 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
         semantic_cells: Tensor::from_vec(cells, b * n1, device)?,
         semantic_xyz: Tensor::from_vec(xyz, (b, n1, 3), device)?,
         proprio: Tensor::from_vec(proprio, (b, 10), device)?,
+        instruction: Tensor::from_vec(instruction, (b, TEXT_HIDDEN_SIZE), device)?,
     })
 }
 

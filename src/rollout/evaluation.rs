@@ -16,7 +16,7 @@ use crate::policy::scene::observation::{KeyframePose, Observation};
 use crate::policy::scene::rotation::{quaternion_from_6d, quaternion_to_6d};
 use crate::policy::training::data::TrainingData;
 use crate::sim::Visuals;
-use crate::stats::median;
+use crate::stats::{median, wilson_interval};
 use crate::tasks::{self, Task};
 
 /// Progress of an evaluation, for a progress bar: `done` of `total` items of `group` (a task).
@@ -53,6 +53,8 @@ pub struct TaskSuccess {
     pub episodes: usize,
     pub successes: usize,
     pub success_rate: f64,
+    /// The 95 % Wilson interval of the success rate.
+    pub success_ci95: [f64; 2],
     /// Mean predicted keyframes per episode.
     pub keyframes: f64,
     /// Fraction of predicted keyframes the controller reached (IK solvable, tracked to tolerance).
@@ -98,6 +100,7 @@ pub fn success_rates(
             episodes: options.episodes,
             successes,
             success_rate: successes as f64 / options.episodes as f64,
+            success_ci95: wilson_interval(successes, options.episodes),
             keyframes: keyframes as f64 / options.episodes as f64,
             reached: if keyframes > 0 { reached as f64 / keyframes as f64 } else { 0.0 },
             inference_ms_median: median(&actor.inference_ms),
@@ -128,6 +131,12 @@ pub struct HeldOutErrors {
     /// Always the mean keyframe of the training episodes of the same task (the instruction names
     /// the task, so this is what a model that ignores the scene could reach).
     pub task_mean: Errors,
+    /// The instruction probe: how far (mm, median) the predicted first keyframe moves when the
+    /// instruction names another variation of the task (same observation, same noise seed).
+    /// Every task here is a choice the instruction decides, so a model that reads it moves.
+    pub instruction_swap_mm: f64,
+    /// Observation / instruction pairs of the probe.
+    pub instruction_swaps: usize,
 }
 
 /// Held-out keyframe errors, over all tasks and per task.
@@ -139,6 +148,9 @@ pub struct HeldOutReport {
     pub model: Errors,
     pub training_mean: Errors,
     pub task_mean: Errors,
+    /// The instruction probe over all tasks (see [`HeldOutErrors::instruction_swap_mm`]).
+    pub instruction_swap_mm: f64,
+    pub instruction_swaps: usize,
     /// The same per task.
     pub tasks: Vec<HeldOutErrors>,
     pub seconds: f64,
@@ -187,6 +199,21 @@ pub fn mean_keyframe<'a>(episodes: impl Iterator<Item = &'a Episode>) -> Result<
     }))
 }
 
+/// At most this many other instructions per held-out episode in the instruction probe.
+const SWAPS_PER_EPISODE: usize = 2;
+
+/// Instructions of other variations of `episode`'s task (the next ones after its own, at most
+/// `n`, skipping any with the same text); none for a task this build does not know.
+fn other_instructions(episode: &Episode, n: usize) -> Vec<String> {
+    let Ok(task) = tasks::by_name(&episode.task) else { return Vec::new() };
+    let count = task.variation_count();
+    (1..count)
+        .map(|d| task.instruction((episode.variation + d) % count))
+        .filter(|i| *i != episode.instruction)
+        .take(n)
+        .collect()
+}
+
 /// Held-out keyframe errors of `policy` (`steps` Euler steps, DRS, noise seed = keyframe index)
 /// on every keyframe of `held_out`, against the mean keyframes of `train` (overall and per task).
 pub fn heldout_errors(
@@ -204,6 +231,8 @@ pub fn heldout_errors(
     let started = Instant::now();
     // per held-out keyframe: task index, (model, training mean, task mean) errors
     let mut rows: Vec<(usize, [KeyframeError; 3])> = Vec::new();
+    // per swapped instruction: task index, how far the first keyframe moved (mm)
+    let mut swaps: Vec<(usize, f64)> = Vec::new();
     for (ti, task) in task_names.iter().enumerate() {
         let task_baseline = mean_keyframe(train.episodes().iter().filter(|e| &e.task == task))?
             .ok_or_else(|| RolloutError::NoBaseline { of: format!("task {task}") })?;
@@ -221,6 +250,13 @@ pub fn heldout_errors(
                     (d, r, p.gripper_open == target.gripper_open)
                 };
                 rows.push((ti, [row(&predicted), row(&baseline), row(&task_baseline)]));
+                if k == 0 {
+                    for instruction in other_instructions(e, SWAPS_PER_EPISODE) {
+                        let swapped = Observation { instruction, ..observation.clone() };
+                        let moved = policy.predict(&swapped, &options)?[0];
+                        swaps.push((ti, f64::from(moved.error_to(&predicted).0) * 1e3));
+                    }
+                }
                 done += 1;
                 progress.advanced(done);
             }
@@ -235,6 +271,8 @@ pub fn heldout_errors(
             model: summarise(&pick(0)),
             training_mean: summarise(&pick(1)),
             task_mean: summarise(&pick(2)),
+            instruction_swap_mm: median(&swaps.iter().filter(|s| filter(s.0)).map(|s| s.1).collect::<Vec<_>>()),
+            instruction_swaps: swaps.iter().filter(|s| filter(s.0)).count(),
         }
     };
     let all = errors("all", &|_| true);
@@ -246,6 +284,8 @@ pub fn heldout_errors(
         model: all.model,
         training_mean: all.training_mean,
         task_mean: all.task_mean,
+        instruction_swap_mm: all.instruction_swap_mm,
+        instruction_swaps: all.instruction_swaps,
         tasks,
         seconds: started.elapsed().as_secs_f64(),
     })

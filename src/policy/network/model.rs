@@ -19,7 +19,8 @@
 //!   encoding of its position.
 //!
 //! Every Mamba block is modulated (AdaLN) by a condition: the prefix by the proprioception's
-//! embedding alone, the suffix by that plus an embedding of the flow time t. The prefix thus
+//! embedding (plus, with `model.instruction_adaln`, an embedding of the instruction's sentence
+//! vector), the suffix by that plus an embedding of the flow time t. The prefix thus
 //! depends only on the observation: inference runs it once and caches the scan state, then runs
 //! only the suffix at each Euler step. Heads on the last (action) token: velocity of the
 //! position (3) and of the rotation (6), and the gripper-open logit.
@@ -72,6 +73,8 @@ pub struct PrefixInputs {
     pub semantic_xyz: Tensor,
     /// [B, 10] proprioception features.
     pub proprio: Tensor,
+    /// [B, 384] the instruction's sentence embedding (for `model.instruction_adaln`).
+    pub instruction: Tensor,
 }
 
 /// Batched inputs of one flow step (suffix).
@@ -135,6 +138,8 @@ pub struct FlowRam {
     /// [4, C]: language, semantic, geometric, action.
     token_types: Tensor,
     proprio_mlp: Mlp,
+    /// The instruction's part of the AdaLN condition (`model.instruction_adaln`).
+    instruction_mlp: Option<Mlp>,
     time_mlp: Mlp,
     mamba: MambaStack,
     position_head: Mlp,
@@ -168,6 +173,11 @@ impl FlowRam {
             action_in: candle_nn::linear(ACTION_DIMS, c, vb.pp("action_in"))?,
             token_types: vb.get_with_hints((4, c), "token_types", candle_nn::Init::Randn { mean: 0.0, stdev: 0.02 })?,
             proprio_mlp: Mlp::new(PROPRIO_DIMS, c, c, vb.pp("proprio_mlp"))?,
+            instruction_mlp: if config.model.instruction_adaln {
+                Some(Mlp::new(TEXT_HIDDEN_SIZE, c, c, vb.pp("instruction_mlp"))?)
+            } else {
+                None
+            },
             time_mlp: Mlp::new(c, c, c, vb.pp("time_mlp"))?,
             mamba: MambaStack::new(&mamba_config, vb.pp("mamba"))?,
             position_head: Mlp::new(c, c, 3, vb.pp("position_head"))?,
@@ -213,7 +223,10 @@ impl FlowRam {
             .add(&positional_encoding(&inputs.semantic_xyz, c)?)?
             .broadcast_add(&self.type_embedding(SEMANTIC)?)?;
         let tokens = Tensor::cat(&[language, semantic], 1)?;
-        let condition = self.proprio_mlp.forward(&inputs.proprio)?;
+        let mut condition = self.proprio_mlp.forward(&inputs.proprio)?;
+        if let Some(mlp) = &self.instruction_mlp {
+            condition = condition.add(&mlp.forward(&inputs.instruction)?)?;
+        }
         Ok((tokens, condition))
     }
 

@@ -22,7 +22,7 @@ use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
 use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::flow::{FlowTimeSampling, LossWeights, flow_matching_loss, flow_training_sample};
+use crate::policy::flow::{LossWeights, flow_matching_loss, flow_training_sample};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, suffix_inputs};
 use crate::policy::network::init::seeded_var_builder;
 use crate::policy::network::model::{FlowRam, device};
@@ -111,7 +111,8 @@ impl Trainer {
         let a1 =
             Tensor::from_vec(targets.iter().flatten().copied().collect::<Vec<f32>>(), (b, ACTION_DIMS), &device())?;
         // Algorithm 1: a0 then t from the noise stream, a_t on the straight path, target a1 - a0.
-        let flow = flow_training_sample(&a1, &mut noise_rng, FlowTimeSampling::Uniform)?;
+        let flow = flow_training_sample(&a1, &mut noise_rng, config.flow.time_sampling)?;
+        let target = config.flow.prediction.target(&flow, &a1);
         let t: Vec<f32> = flow.t.to_vec1()?;
         let a_t_rows: Vec<[f32; ACTION_DIMS]> =
             flow.a_t.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
@@ -122,8 +123,7 @@ impl Trainer {
         let out = self.model.forward(&prefix, &suffix)?;
         let weights = LossWeights { cfm: config.flow.cfm_weight, open: config.flow.open_weight };
         let open_target = Tensor::from_vec(opens, b, &device())?;
-        let (total, cfm, bce) =
-            flow_matching_loss(&out.velocity, &flow.target_velocity, &out.open_logit, &open_target, &weights)?;
+        let (total, cfm, bce) = flow_matching_loss(&out.velocity, &target, &out.open_logit, &open_target, &weights)?;
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;
         self.step = step;

@@ -177,7 +177,7 @@ impl PredictOnce for Policy {
 fn the_instruction_reaches_the_adaln_condition_only_when_configured() {
     let episode = demonstration();
     let observation = Observation::from_episode(episode, 0).unwrap();
-    let other = Observation { instruction: "push the red button".into(), ..observation.clone() };
+    let other = Observation { instruction: "open the middle drawer".into(), ..observation.clone() };
     assert_ne!(other.instruction, observation.instruction);
     let condition = |adaln: bool, o: &Observation| -> Vec<f32> {
         let mut config = tiny_config();

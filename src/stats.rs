@@ -27,9 +27,36 @@ pub fn wilson_interval(successes: usize, trials: usize) -> [f64; 2] {
     [(centre - half).max(0.0), (centre + half).min(1.0)]
 }
 
+/// The exact two-sided McNemar test of two policies run on the same seeds: `only_a` seeds that
+/// only the first solved and `only_b` that only the second solved (the seeds both or neither
+/// solved carry no information about which is better). Returns the p-value of "equally good":
+/// twice the binomial(n, 1/2) tail of the smaller count, at most 1.
+pub fn mcnemar_exact_p(only_a: usize, only_b: usize) -> f64 {
+    let n = only_a + only_b;
+    if n == 0 {
+        return 1.0;
+    }
+    let k = only_a.min(only_b);
+    // sum_{i <= k} C(n, i) / 2^n, in logs so that large n stays finite
+    let ln_choose = |i: usize| -> f64 { (1..=i).map(|j| ((n - i + j) as f64 / j as f64).ln()).sum() };
+    let tail: f64 = (0..=k).map(|i| (ln_choose(i) - n as f64 * std::f64::consts::LN_2).exp()).sum();
+    (2.0 * tail).min(1.0)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn mcnemar_matches_the_binomial_tail() {
+        // 0 vs 6 discordant seeds: 2 / 64
+        assert!((mcnemar_exact_p(0, 6) - 2.0 / 64.0).abs() < 1e-12);
+        // 1 vs 9: 2 (1 + 10) / 1024
+        assert!((mcnemar_exact_p(9, 1) - 22.0 / 1024.0).abs() < 1e-12);
+        assert_eq!(mcnemar_exact_p(3, 3), 1.0);
+        assert_eq!(mcnemar_exact_p(0, 0), 1.0);
+        assert!(mcnemar_exact_p(0, 400) < 1e-100);
+    }
 
     #[test]
     fn wilson_interval_matches_published_values() {

@@ -4,7 +4,7 @@ use std::sync::OnceLock;
 
 use flowram::data::Episode;
 use flowram::policy::PolicyError;
-use flowram::policy::config::PolicyConfig;
+use flowram::policy::config::{InstructionPooling, PolicyConfig};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
@@ -179,17 +179,36 @@ fn the_instruction_reaches_the_adaln_condition_only_when_configured() {
     let observation = Observation::from_episode(episode, 0).unwrap();
     let other = Observation { instruction: "open the middle drawer".into(), ..observation.clone() };
     assert_ne!(other.instruction, observation.instruction);
-    let condition = |adaln: bool, o: &Observation| -> Vec<f32> {
+    let pooled = |adaln: bool, pooling: InstructionPooling, o: &Observation| -> Vec<f32> {
         let mut config = tiny_config();
         config.model.instruction_adaln = adaln;
+        config.model.instruction_pooling = pooling;
         let mut policy = Policy::random(&config, text()).unwrap();
         let prepared = policy.prepare(o).unwrap();
         policy.encode(&prepared).unwrap().condition.flatten_all().unwrap().to_vec1().unwrap()
     };
+    let condition = |adaln: bool, o: &Observation| -> Vec<f32> { pooled(adaln, InstructionPooling::Sentence, o) };
     // The paper's conditioning: proprioception only, whatever the instruction says.
     assert_eq!(condition(false, &observation), condition(false, &other));
     // With model.instruction_adaln, every block's modulation depends on the instruction.
     assert_ne!(condition(true, &observation), condition(true, &other));
+    // ... also when it pools the instruction's tokens by attention; and pooling is not ignored.
+    let attention = pooled(true, InstructionPooling::Attention, &observation);
+    assert_ne!(attention, pooled(true, InstructionPooling::Attention, &other));
+    assert_ne!(attention, condition(true, &observation));
+    // Padding carries no weight: the same instruction padded to more tokens pools the same.
+    let mut config = tiny_config();
+    config.model.instruction_adaln = true;
+    config.model.instruction_pooling = InstructionPooling::Attention;
+    let mut longer = config.clone();
+    longer.observation.language_tokens += 8;
+    let at = |config: &PolicyConfig| -> Vec<f32> {
+        let mut policy = Policy::random(config, text()).unwrap();
+        let prepared = policy.prepare(&observation).unwrap();
+        policy.encode(&prepared).unwrap().condition.flatten_all().unwrap().to_vec1().unwrap()
+    };
+    let (short, long) = (at(&config), at(&longer));
+    assert!(short.iter().zip(&long).all(|(a, b)| (a - b).abs() < 1e-5), "padding changed the pooled instruction");
 }
 
 #[test]
@@ -204,4 +223,61 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert!(!config.model.instruction_adaln);
     assert_eq!(config.flow.prediction, flowram::policy::flow::Prediction::Velocity);
     assert_eq!(config.flow.time_sampling, flowram::policy::flow::FlowTimeSampling::Uniform);
+}
+
+#[test]
+fn several_flow_samples_of_one_observation_share_its_encoding() {
+    use flowram::policy::inputs::{Augmentation, prefix_inputs, suffix_inputs};
+    // train.flow_samples: the training forward takes K flow samples per observation (sample i
+    // belongs to observation i / K); each must come out as if run alone with its observation.
+    let config = tiny_config();
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let episode = demonstration();
+    let prepared: Vec<_> =
+        (0..2).map(|k| policy.prepare(&Observation::from_episode(episode, k).unwrap()).unwrap()).collect();
+    let actions: Vec<[f32; 9]> =
+        (0..4).map(|i| std::array::from_fn(|d| 0.1 * (i as f32 + 1.0) * if d % 2 == 0 { 1.0 } else { -0.5 })).collect();
+    let t = [0.1f32, 0.7, 0.3, 0.95];
+    let owner = [0usize, 0, 1, 1];
+    let schedule = &config.radius_schedule;
+    let observations: Vec<_> = prepared.iter().map(|p| (p, Augmentation::NONE)).collect();
+    let per_sample: Vec<_> = owner.iter().map(|&o| observations[o]).collect();
+    let prefix = prefix_inputs(&config, &observations).unwrap();
+    let suffix = suffix_inputs(&config, &per_sample, &owner, &actions, &t, schedule).unwrap();
+    let together = policy.model.forward(&prefix, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
+    for i in 0..4 {
+        let alone_prefix = prefix_inputs(&config, &[observations[owner[i]]]).unwrap();
+        let alone_suffix =
+            suffix_inputs(&config, &[observations[owner[i]]], &[0], &[actions[i]], &[t[i]], schedule).unwrap();
+        let alone = policy.model.forward(&alone_prefix, &alone_suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
+        for (a, b) in together[i].iter().zip(&alone[0]) {
+            assert!((a - b).abs() < 1e-4, "sample {i}: {:?} together, {:?} alone", together[i], alone[0]);
+        }
+    }
+    // Samples that cannot be split evenly over the observations are refused.
+    let odd = suffix_inputs(&config, &per_sample[..3], &owner[..3], &actions[..3], &t[..3], schedule).unwrap();
+    assert!(policy.model.forward(&prefix, &odd).is_err());
+}
+
+#[test]
+fn a_policy_sees_only_the_cameras_its_config_names() {
+    let episode = demonstration(); // front and left_shoulder
+    let observation = Observation::from_episode(episode, 0).unwrap();
+    let mut config = tiny_config();
+    config.observation.cameras = vec!["left_shoulder".into()];
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let prepared = policy.prepare(&observation).unwrap();
+    assert_eq!(prepared.cameras, 1);
+    let side = 3 * 64 * 64;
+    let rgb = &observation.cameras[1].rgb;
+    assert_eq!(prepared.images[..side / 3], rgb.iter().step_by(3).copied().collect::<Vec<u8>>()[..]);
+    policy.predict(&observation, &SamplingOptions { steps: 2, samples: 1, drs: true, seed: 0 }).unwrap();
+    // A camera the observation does not have is named, with what to do.
+    config.observation.cameras = vec!["overhead".into()];
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let message = policy.prepare(&observation).unwrap_err().to_string();
+    assert!(message.contains("overhead") && message.contains("--cameras"), "{message}");
+    // Names must be distinct.
+    config.observation.cameras = vec!["front".into(), "front".into()];
+    assert!(config.validate().is_err());
 }

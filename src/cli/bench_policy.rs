@@ -5,17 +5,19 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use clap::Args;
+use flowram::data::Episode;
 use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SampleProfile, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
+use flowram::policy::runtime::in_pool;
 use flowram::policy::scene::observation::Observation;
 use flowram::policy::training::data::TrainingData;
 use flowram::policy::training::trainer::Trainer;
 use flowram::rollout::collection::demonstration;
-use flowram::rollout::evaluation::{Errors, SuccessOptions, heldout_errors, success_rates};
+use flowram::rollout::evaluation::{Errors, SuccessOptions, TaskSuccess, heldout_errors, success_rates};
 use flowram::rollout::learned::DEFAULT_CAMERAS;
 use flowram::sim::Visuals;
-use flowram::stats::median;
+use flowram::stats::{mcnemar_exact_p, median, wilson_interval};
 use flowram::tasks;
 use serde::Serialize;
 
@@ -76,6 +78,51 @@ struct PolicyBenchReport {
     drs8_steps: SampleProfile,
     train_step_ms: f64,
     train_batch: usize,
+    /// Observations per second of that training step (x `train.flow_samples` flow samples).
+    train_samples_per_s: f64,
+    /// The shipped CPU config (models/policy/cpu.toml) at its own batch: step time, observations/s.
+    cpu_config_train_step_ms: f64,
+    cpu_config_train_batch: usize,
+    cpu_config_train_samples_per_s: f64,
+    /// The machine's single-precision GEMM peak on the policy's threads (1024^3 f32 matmul, best
+    /// of the repeats), and what the 8 DRS steps end to end achieve against it.
+    gemm_peak_gflops: f64,
+    keyframe_gflop: f64,
+    achieved_gflops: f64,
+}
+
+/// Best single-precision GEMM rate (GFLOP/s) of `repeats` 1024^3 products on the policy's pool.
+fn gemm_peak_gflops(repeats: usize) -> anyhow::Result<f64> {
+    const N: usize = 1024;
+    let device = flowram::policy::network::model::device();
+    let a = candle_core::Tensor::randn(0f32, 1.0, (N, N), &device)?;
+    let b = candle_core::Tensor::randn(0f32, 1.0, (N, N), &device)?;
+    in_pool(|| -> anyhow::Result<f64> {
+        a.matmul(&b)?; // warm-up
+        let mut best = f64::INFINITY;
+        for _ in 0..repeats.max(5) {
+            let t0 = Instant::now();
+            let c = a.matmul(&b)?;
+            best = best.min(t0.elapsed().as_secs_f64());
+            drop(c);
+        }
+        Ok(2.0 * (N * N * N) as f64 / best / 1e9)
+    })
+}
+
+/// Median training-step time (ms) of `config` at its batch on one demonstration.
+fn time_training_step(config: &PolicyConfig, episode: &Episode, repeats: usize) -> anyhow::Result<f64> {
+    let mut trainer = Trainer::new(config)?;
+    let mut data = TrainingData::from_episodes(vec![episode.clone()])?;
+    let mut text = TextEncoder::load_installed()?;
+    trainer.train_step(&mut data, &mut text)?; // prepares the observations once
+    let mut train_ms = Vec::new();
+    for _ in 0..repeats {
+        let t0 = Instant::now();
+        trainer.train_step(&mut data, &mut text)?;
+        train_ms.push(t0.elapsed().as_secs_f64() * 1e3);
+    }
+    Ok(median(&train_ms))
 }
 
 pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
@@ -140,33 +187,42 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         selection_ms: median(&profiles.iter().map(|p| p.selection_ms).collect::<Vec<_>>()),
         network_ms: median(&profiles.iter().map(|p| p.network_ms).collect::<Vec<_>>()),
     };
-    // Training step at the config's batch size, on the rendered demonstration.
+    // Training step at the requested batch size, on the rendered demonstration, and the shipped
+    // CPU config's at its own.
     let mut train_config = config.clone();
     train_config.train.batch = args.train_batch;
     train_config.validate()?;
-    let mut trainer = Trainer::new(&train_config)?;
-    let mut data = TrainingData::from_episodes(vec![episode])?;
-    let mut text = TextEncoder::load_installed()?;
-    trainer.train_step(&mut data, &mut text)?; // prepares the observations once
-    let mut train_ms = Vec::new();
-    for _ in 0..args.repeats {
-        let t0 = Instant::now();
-        trainer.train_step(&mut data, &mut text)?;
-        train_ms.push(t0.elapsed().as_secs_f64() * 1e3);
-    }
+    let train_step_ms = time_training_step(&train_config, &episode, args.repeats)?;
+    let cpu_config = PolicyConfig::cpu_default()?;
+    let cpu_step_ms = time_training_step(&cpu_config, &episode, args.repeats)?;
+    let cameras = if config.observation.cameras.is_empty() {
+        observation.cameras.len()
+    } else {
+        config.observation.cameras.len()
+    };
+    let keyframe_flops = policy.model.keyframe_flops(cameras, 8);
+    let gemm_peak = gemm_peak_gflops(args.repeats)?;
+    let drs8_ms = infer_ms.drs.s8;
     let report = PolicyBenchReport {
         n1: config.observation.semantic_tokens,
         n2: config.observation.geometric_tokens,
         layers: config.model.layers,
-        cameras: observation.cameras.len(),
+        cameras,
         image_size: config.observation.image_size,
         threads: rayon::current_num_threads(),
         prepare_ms: median(&prepare_ms),
         encode_ms: median(&encode_ms),
         infer_ms,
         drs8_steps: drs8,
-        train_step_ms: median(&train_ms),
+        train_step_ms,
         train_batch: args.train_batch,
+        train_samples_per_s: args.train_batch as f64 / (train_step_ms / 1e3),
+        cpu_config_train_step_ms: cpu_step_ms,
+        cpu_config_train_batch: cpu_config.train.batch,
+        cpu_config_train_samples_per_s: cpu_config.train.batch as f64 / (cpu_step_ms / 1e3),
+        gemm_peak_gflops: gemm_peak,
+        keyframe_gflop: keyframe_flops / 1e9,
+        achieved_gflops: keyframe_flops / 1e9 / (drs8_ms / 1e3),
     };
     if args.json {
         return super::print_json(&report);
@@ -189,7 +245,22 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         "  8 DRS steps after encoding: token selection {:.1} ms, network {:.1} ms",
         report.drs8_steps.selection_ms, report.drs8_steps.network_ms
     );
-    println!("  training step, batch {}: {:.0} ms", report.train_batch, report.train_step_ms);
+    println!(
+        "  8 DRS steps: {:.2} GFLOP per keyframe, {:.1} GFLOP/s achieved = {:.0} % of this machine's GEMM peak ({:.1} GFLOP/s, {} threads)",
+        report.keyframe_gflop,
+        report.achieved_gflops,
+        100.0 * report.achieved_gflops / report.gemm_peak_gflops,
+        report.gemm_peak_gflops,
+        report.threads
+    );
+    println!(
+        "  training step, batch {}: {:.0} ms ({:.1} observations/s)",
+        report.train_batch, report.train_step_ms, report.train_samples_per_s
+    );
+    println!(
+        "  shipped CPU config (models/policy/cpu.toml) training step, batch {}: {:.0} ms ({:.1} observations/s)",
+        report.cpu_config_train_batch, report.cpu_config_train_step_ms, report.cpu_config_train_samples_per_s
+    );
     Ok(())
 }
 
@@ -242,12 +313,21 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
             "instruction"
         )
     };
+    let target = |accuracy: f64, n: usize| {
+        println!(
+            "  {:>13}: the instructed target is the nearest in {:.0} % of {n} keyframes the instruction decides",
+            "target",
+            100.0 * accuracy
+        )
+    };
     swap(report.instruction_swap_mm, report.instruction_swaps);
+    target(report.target_accuracy, report.target_choices);
     for t in &report.tasks {
         println!("  {} ({} keyframes):", t.task, t.keyframes);
         line("model", &t.model);
         line("task mean", &t.task_mean);
         swap(t.instruction_swap_mm, t.instruction_swaps);
+        target(t.target_accuracy, t.target_choices);
     }
     Ok(())
 }
@@ -266,28 +346,81 @@ pub struct SuccessBenchArgs {
     seed: u64,
     #[command(flatten)]
     learned: LearnedArgs,
+    /// A second checkpoint, run on the same seeds with the same sampling options: both success
+    /// tables are printed, with the paired comparison (seeds only one of them solved, exact
+    /// McNemar p-value) per task and over all tasks.
+    #[arg(long)]
+    baseline: Option<PathBuf>,
     #[arg(long)]
     json: bool,
+}
+
+/// One task's (or all tasks', `task = "all"`) paired comparison of two checkpoints.
+#[derive(Debug, Serialize)]
+struct PairedComparison {
+    task: String,
+    /// Seeds the checkpoint solved and the baseline did not.
+    only_checkpoint: usize,
+    /// Seeds the baseline solved and the checkpoint did not.
+    only_baseline: usize,
+    /// Exact McNemar test of "equally good".
+    p_value: f64,
 }
 
 /// `flowram bench success`: closed-loop success rate of a trained policy on held-out seeds.
 pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
     let task_list = args.tasks.iter().map(|name| tasks::by_name(name)).collect::<Result<Vec<_>, _>>()?;
-    let mut actor = args.learned.load_actor()?;
     let options = SuccessOptions {
         episodes: args.episodes,
         seed: args.seed,
         max_keyframes: args.learned.max_keyframes,
         cameras: args.learned.cameras.clone(),
     };
+    let mut actor = args.learned.load_actor()?;
     let reports = success_rates(&mut actor, &task_list, &options, &mut TaskBar::new("episodes"))?;
+    drop(actor);
+    let Some(baseline) = &args.baseline else {
+        if args.json {
+            return super::print_json(&reports);
+        }
+        print_success_table(&reports);
+        return Ok(());
+    };
+    let mut baseline_actor = args.learned.load_actor_from(baseline)?;
+    let baseline_reports = success_rates(&mut baseline_actor, &task_list, &options, &mut TaskBar::new("baseline"))?;
+    let comparison = paired_comparison(&reports, &baseline_reports);
     if args.json {
-        return super::print_json(&reports);
+        #[derive(Serialize)]
+        struct Compared<'a> {
+            checkpoint: &'a [TaskSuccess],
+            baseline: &'a [TaskSuccess],
+            comparison: &'a [PairedComparison],
+        }
+        return super::print_json(&Compared {
+            checkpoint: &reports,
+            baseline: &baseline_reports,
+            comparison: &comparison,
+        });
     }
-    for r in &reports {
+    println!("checkpoint:");
+    print_success_table(&reports);
+    println!("baseline ({}):", baseline.display());
+    print_success_table(&baseline_reports);
+    println!("paired on the same seeds:");
+    for c in &comparison {
         println!(
-            "{}: {}/{} successes ({:.0} %, 95 % CI {:.0}-{:.0} %), {:.1} keyframes per episode, {:.0} % reached, inference {:.0} ms (median)",
+            "  {}: {} seeds solved only by the checkpoint, {} only by the baseline (exact McNemar p = {:.3})",
+            c.task, c.only_checkpoint, c.only_baseline, c.p_value
+        );
+    }
+    Ok(())
+}
+
+fn print_success_table(reports: &[TaskSuccess]) {
+    for r in reports {
+        println!(
+            "  {}: {}/{} successes ({:.0} %, 95 % CI {:.0}-{:.0} %), {:.1} keyframes per episode, {:.0} % reached, inference {:.0} ms (median)",
             r.task,
             r.successes,
             r.episodes,
@@ -299,5 +432,46 @@ pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
             r.inference_ms_median
         );
     }
-    Ok(())
+    if reports.len() > 1 {
+        let successes: usize = reports.iter().map(|r| r.successes).sum();
+        let episodes: usize = reports.iter().map(|r| r.episodes).sum();
+        let ci = wilson_interval(successes, episodes);
+        let task_mean = reports.iter().map(|r| r.success_rate).sum::<f64>() / reports.len() as f64;
+        let worst = reports.iter().map(|r| r.success_rate).fold(f64::INFINITY, f64::min);
+        println!(
+            "  all: {successes}/{episodes} successes ({:.0} %, 95 % CI {:.0}-{:.0} %), task mean {:.0} %, worst task {:.0} %",
+            100.0 * successes as f64 / episodes as f64,
+            100.0 * ci[0],
+            100.0 * ci[1],
+            100.0 * task_mean,
+            100.0 * worst
+        );
+    }
+}
+
+/// Seeds solved by only one of the two (same tasks and seeds, in the same order).
+fn paired_comparison(checkpoint: &[TaskSuccess], baseline: &[TaskSuccess]) -> Vec<PairedComparison> {
+    let mut rows = Vec::with_capacity(checkpoint.len() + 1);
+    let (mut all_a, mut all_b) = (0, 0);
+    for (a, b) in checkpoint.iter().zip(baseline) {
+        let pairs = a.outcomes.iter().zip(&b.outcomes);
+        let only_a = pairs.clone().filter(|(x, y)| x.success && !y.success).count();
+        let only_b = pairs.filter(|(x, y)| !x.success && y.success).count();
+        (all_a, all_b) = (all_a + only_a, all_b + only_b);
+        rows.push(PairedComparison {
+            task: a.task.clone(),
+            only_checkpoint: only_a,
+            only_baseline: only_b,
+            p_value: mcnemar_exact_p(only_a, only_b),
+        });
+    }
+    if checkpoint.len() > 1 {
+        rows.push(PairedComparison {
+            task: "all".into(),
+            only_checkpoint: all_a,
+            only_baseline: all_b,
+            p_value: mcnemar_exact_p(all_a, all_b),
+        });
+    }
+    rows
 }

@@ -1,8 +1,7 @@
 //! The arguments of a learned policy acting closed loop (`run --policy flowram`,
 //! `bench success`), and loading it.
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use anyhow::Context;
 use clap::Args;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
@@ -11,7 +10,8 @@ use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
 /// How a learned policy runs closed loop.
 #[derive(Debug, Args)]
 pub struct LearnedArgs {
-    /// Run folder (runs/NAME) or checkpoint folder of a trained policy.
+    /// Run folder (runs/NAME) or checkpoint folder of a trained policy [default: the checkpoint
+    /// shipped in models/policy/pretrained/five-tasks].
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
     /// Euler steps (default: the checkpoint's flow.sampling_steps).
@@ -29,12 +29,26 @@ pub struct LearnedArgs {
 }
 
 impl LearnedArgs {
-    /// Loads the checkpoint (`--checkpoint`), with the sampling options.
+    /// Loads the checkpoint (`--checkpoint`, else the shipped one), with the sampling options.
     pub fn load_actor(&self) -> anyhow::Result<FlowRamActor> {
-        let checkpoint = self
-            .checkpoint
-            .as_ref()
-            .context("the learned policy needs --checkpoint runs/NAME (a run folder from `flowram train`)")?;
+        let checkpoint = match &self.checkpoint {
+            Some(path) => path.clone(),
+            None => {
+                let shipped = shipped_checkpoint();
+                anyhow::ensure!(
+                    shipped.is_dir(),
+                    "no --checkpoint given and the shipped checkpoint {} is missing: pass --checkpoint runs/NAME \
+                     (a run folder from `flowram train`)",
+                    shipped.display()
+                );
+                shipped
+            }
+        };
+        self.load_actor_from(&checkpoint)
+    }
+
+    /// Loads `checkpoint` with these sampling options.
+    pub fn load_actor_from(&self, checkpoint: &Path) -> anyhow::Result<FlowRamActor> {
         anyhow::ensure!(self.max_keyframes > 0, "--max-keyframes must be at least 1");
         let policy = Policy::load(checkpoint, TextEncoder::load_installed()?)?;
         let options = SamplingOptions {
@@ -45,4 +59,9 @@ impl LearnedArgs {
         };
         Ok(FlowRamActor::new(policy, options))
     }
+}
+
+/// The five-task checkpoint shipped with the project (see its model card).
+pub fn shipped_checkpoint() -> PathBuf {
+    flowram::deps::models_dir().join("policy/pretrained/five-tasks")
 }

@@ -41,6 +41,11 @@ pub struct ObservationConfig {
     pub min_inside: usize,
     /// Language tokens: the instruction's MiniLM tokens, truncated or padded to this count.
     pub language_tokens: usize,
+    /// The cameras the policy sees, by name, in this order (a subset of the dataset's, e.g.
+    /// `["front"]` for the paper's single-view setting). Empty (the default): every camera of the
+    /// observation, in its order.
+    #[serde(default)]
+    pub cameras: Vec<String>,
 }
 
 /// The network.
@@ -60,6 +65,21 @@ pub struct ModelConfig {
     /// instruction is only the first tokens of the scan.
     #[serde(default)]
     pub instruction_adaln: bool,
+    /// What the instruction AdaLN reads: `"sentence"` (the MiniLM sentence embedding, a mean over
+    /// the tokens) or `"attention"` (a learned softmax pooling of the instruction's token
+    /// features, so the word that tells variations apart, "left" or "red", can dominate the
+    /// condition rather than be averaged with the words every instruction of the task shares).
+    #[serde(default)]
+    pub instruction_pooling: InstructionPooling,
+}
+
+/// How the instruction AdaLN (`model.instruction_adaln`) pools the instruction's tokens.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InstructionPooling {
+    #[default]
+    Sentence,
+    Attention,
 }
 
 /// Conditional flow matching.
@@ -108,6 +128,16 @@ pub struct TrainConfig {
     pub brightness_jitter: f64,
     pub checkpoint_every: usize,
     pub log_every: usize,
+    /// Flow samples (noise a0 and time t) per observation of the batch: the K samples of one
+    /// observation share its image encoding, which is most of a step's cost, so the flow loss
+    /// sees `batch x flow_samples` samples for little more compute (as Octo and MAR do). 1 (the
+    /// paper): one sample per observation.
+    #[serde(default = "one")]
+    pub flow_samples: usize,
+}
+
+fn one() -> usize {
+    1
 }
 
 impl PolicyConfig {
@@ -153,6 +183,7 @@ impl PolicyConfig {
             ("model.layers", self.model.layers),
             ("flow.sampling_steps", self.flow.sampling_steps),
             ("train.batch", self.train.batch),
+            ("train.flow_samples", self.train.flow_samples),
             ("train.checkpoint_every", self.train.checkpoint_every),
             ("train.log_every", self.train.log_every),
         ] {
@@ -166,6 +197,11 @@ impl PolicyConfig {
                 "a multiple of 6 (the 3D positional encoding uses sin and cos per axis)",
                 self.model.channels.to_string(),
             );
+        }
+        for (i, name) in o.cameras.iter().enumerate() {
+            if name.is_empty() || o.cameras[..i].contains(name) {
+                return bad("observation.cameras", "distinct, non-empty camera names", format!("{:?}", o.cameras));
+            }
         }
         self.radius_schedule.validate()?;
         self.flow.time_sampling.validate()?;

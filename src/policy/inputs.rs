@@ -51,6 +51,13 @@ pub fn prepare(
             observation.size, o.image_size
         )));
     }
+    let selected;
+    let observation = if o.cameras.is_empty() {
+        observation
+    } else {
+        selected = select_cameras(observation, &o.cameras)?;
+        &selected
+    };
     let (h, w) = (observation.size, observation.size);
     let mut images = Vec::with_capacity(observation.cameras.len() * 3 * h * w);
     for view in &observation.cameras {
@@ -77,6 +84,27 @@ pub fn prepare(
         proprio,
         language,
         instruction: features.embedding.clone(),
+    })
+}
+
+/// The observation restricted to the named cameras (`observation.cameras`), in that order.
+fn select_cameras(observation: &Observation, names: &[String]) -> Result<Observation> {
+    let mut cameras = Vec::with_capacity(names.len());
+    for name in names {
+        let view = observation.cameras.iter().find(|v| &v.name == name).ok_or_else(|| {
+            let have: Vec<&str> = observation.cameras.iter().map(|v| v.name.as_str()).collect();
+            PolicyError::Invalid(format!(
+                "this policy sees the cameras {names:?} (observation.cameras) but the observation has {have:?}: \
+                 render or collect with those cameras (--cameras)"
+            ))
+        })?;
+        cameras.push(view.clone());
+    }
+    Ok(Observation {
+        size: observation.size,
+        cameras,
+        proprio: observation.proprio,
+        instruction: observation.instruction.clone(),
     })
 }
 

@@ -202,6 +202,18 @@ fn execute(
     Ok(())
 }
 
+/// The expert's keyframes for `variation` at `seed`, planned from the settled start of that
+/// episode and not executed (what `run_episode` with [`Actor::Expert`] goes to first).
+pub fn expert_plan(
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+) -> Result<Vec<Keyframe>, RolloutError> {
+    let (state, _, _) = begin(task, world, variation, seed)?;
+    Ok(task.expert(world, &state)?)
+}
+
 /// Resets the world and the task (seeded), builds the control stack and lets the objects
 /// settle while the controller holds the arm. Returns the task state, the runner and the start
 /// time.

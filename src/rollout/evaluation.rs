@@ -8,7 +8,7 @@ use std::time::Instant;
 use serde::Serialize;
 
 use super::RolloutError;
-use super::episode::{Actor, Observer, camera_rig, run_episode};
+use super::episode::{Actor, Observer, camera_rig, expert_plan, run_episode};
 use super::learned::FlowRamActor;
 use crate::data::Episode;
 use crate::policy::inference::{Policy, SamplingOptions};
@@ -60,6 +60,16 @@ pub struct TaskSuccess {
     /// Fraction of predicted keyframes the controller reached (IK solvable, tracked to tolerance).
     pub reached: f64,
     pub inference_ms_median: f64,
+    /// The seed of each episode and whether it succeeded, in order.
+    pub outcomes: Vec<SeedOutcome>,
+}
+
+/// One closed-loop episode's result.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+pub struct SeedOutcome {
+    pub seed: u64,
+    pub variation: usize,
+    pub success: bool,
 }
 
 /// Closed-loop success rates of `actor` on `options.episodes` held-out seeds of each task.
@@ -83,6 +93,7 @@ pub fn success_rates(
         let (mut rig, cameras) = camera_rig(&world, size, Visuals::Full, &options.cameras)?;
         progress.started(task.name(), options.episodes);
         let (mut successes, mut keyframes, mut reached) = (0usize, 0usize, 0usize);
+        let mut outcomes = Vec::with_capacity(options.episodes);
         for i in 0..options.episodes {
             let seed = options.seed + i as u64;
             let variation = seed as usize % task.variation_count();
@@ -92,6 +103,7 @@ pub fn success_rates(
             successes += usize::from(result.success);
             keyframes += result.keyframes;
             reached += result.reached;
+            outcomes.push(SeedOutcome { seed, variation, success: result.success });
             progress.advanced(i + 1);
         }
         progress.finished();
@@ -104,6 +116,7 @@ pub fn success_rates(
             keyframes: keyframes as f64 / options.episodes as f64,
             reached: if keyframes > 0 { reached as f64 / keyframes as f64 } else { 0.0 },
             inference_ms_median: median(&actor.inference_ms),
+            outcomes,
         });
     }
     Ok(reports)
@@ -137,6 +150,12 @@ pub struct HeldOutErrors {
     pub instruction_swap_mm: f64,
     /// Observation / instruction pairs of the probe.
     pub instruction_swaps: usize,
+    /// The target probe: of the held-out episodes' first keyframes that the instruction decides
+    /// (the first keyframe the experts of the other variations, in the same scene, place 3 cm or
+    /// more away), the fraction predicted nearer the instructed variation's than any other's.
+    pub target_accuracy: f64,
+    /// Keyframes of the target probe.
+    pub target_choices: usize,
 }
 
 /// Held-out keyframe errors, over all tasks and per task.
@@ -151,6 +170,9 @@ pub struct HeldOutReport {
     /// The instruction probe over all tasks (see [`HeldOutErrors::instruction_swap_mm`]).
     pub instruction_swap_mm: f64,
     pub instruction_swaps: usize,
+    /// The target probe over all tasks (see [`HeldOutErrors::target_accuracy`]).
+    pub target_accuracy: f64,
+    pub target_choices: usize,
     /// The same per task.
     pub tasks: Vec<HeldOutErrors>,
     pub seconds: f64,
@@ -214,6 +236,45 @@ fn other_instructions(episode: &Episode, n: usize) -> Vec<String> {
         .collect()
 }
 
+/// Variations' keyframes this far apart (m) are different targets.
+const DISTINCT_TARGETS_M: f64 = 0.03;
+
+/// A keyframe index and the expert's position there for every variation (world frame, m).
+type InstructedKeyframe = (usize, Vec<[f64; 3]>);
+
+/// The first keyframe of `episode` that its instruction decides, and the expert's keyframe there
+/// for every variation of the task in the same scene (same seed): the first index at which the
+/// episode's own expert keyframe is at least [`DISTINCT_TARGETS_M`] from every other variation's.
+/// `None` for tasks this build does not know or whose variations never part.
+fn instructed_keyframe(
+    episode: &Episode,
+    world: &mut Option<crate::sim::World>,
+) -> Result<Option<InstructedKeyframe>, RolloutError> {
+    let Ok(task) = tasks::by_name(&episode.task) else { return Ok(None) };
+    if world.is_none() {
+        *world = Some(tasks::load_world(task.as_ref())?);
+    }
+    let world = world.as_mut().expect("loaded above");
+    let plans = (0..task.variation_count())
+        .map(|v| expert_plan(task.as_ref(), world, v, episode.seed))
+        .collect::<Result<Vec<_>, _>>()?;
+    let own = &plans[episode.variation];
+    for (k, mine) in own.iter().enumerate().take(episode.keyframes()) {
+        let apart = plans.iter().enumerate().filter(|(v, _)| *v != episode.variation).all(|(_, plan)| {
+            plan.get(k).is_none_or(|other| distance(&other.position, &mine.position) >= DISTINCT_TARGETS_M)
+        });
+        if apart {
+            let targets = plans.iter().map(|plan| plan.get(k).map_or([f64::INFINITY; 3], |kf| kf.position)).collect();
+            return Ok(Some((k, targets)));
+        }
+    }
+    Ok(None)
+}
+
+fn distance(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
+}
+
 /// Held-out keyframe errors of `policy` (`steps` Euler steps, DRS, noise seed = keyframe index)
 /// on every keyframe of `held_out`, against the mean keyframes of `train` (overall and per task).
 pub fn heldout_errors(
@@ -233,13 +294,17 @@ pub fn heldout_errors(
     let mut rows: Vec<(usize, [KeyframeError; 3])> = Vec::new();
     // per swapped instruction: task index, how far the first keyframe moved (mm)
     let mut swaps: Vec<(usize, f64)> = Vec::new();
+    // per instructed keyframe: task index, whether the nearest variation's target is the own
+    let mut choices: Vec<(usize, bool)> = Vec::new();
     for (ti, task) in task_names.iter().enumerate() {
+        let mut world = None;
         let task_baseline = mean_keyframe(train.episodes().iter().filter(|e| &e.task == task))?
             .ok_or_else(|| RolloutError::NoBaseline { of: format!("task {task}") })?;
         let episodes: Vec<&Episode> = held_out.episodes().iter().filter(|e| &e.task == task).collect();
         progress.started(task, episodes.iter().map(|e| e.keyframes()).sum());
         let mut done = 0;
         for e in episodes {
+            let instructed = instructed_keyframe(e, &mut world)?;
             for k in 0..e.keyframes() {
                 let observation = Observation::from_episode(e, k)?;
                 let target = Observation::episode_action(e, k);
@@ -250,6 +315,13 @@ pub fn heldout_errors(
                     (d, r, p.gripper_open == target.gripper_open)
                 };
                 rows.push((ti, [row(&predicted), row(&baseline), row(&task_baseline)]));
+                if let Some((_, targets)) = instructed.as_ref().filter(|(at, _)| *at == k) {
+                    let p = predicted.position.map(f64::from);
+                    let nearest = (0..targets.len())
+                        .min_by(|&a, &b| distance(&p, &targets[a]).total_cmp(&distance(&p, &targets[b])))
+                        .expect("every task has a variation");
+                    choices.push((ti, nearest == e.variation));
+                }
                 if k == 0 {
                     for instruction in other_instructions(e, SWAPS_PER_EPISODE) {
                         let swapped = Observation { instruction, ..observation.clone() };
@@ -273,6 +345,11 @@ pub fn heldout_errors(
             task_mean: summarise(&pick(2)),
             instruction_swap_mm: median(&swaps.iter().filter(|s| filter(s.0)).map(|s| s.1).collect::<Vec<_>>()),
             instruction_swaps: swaps.iter().filter(|s| filter(s.0)).count(),
+            target_accuracy: {
+                let picked: Vec<bool> = choices.iter().filter(|c| filter(c.0)).map(|c| c.1).collect();
+                picked.iter().filter(|&&c| c).count() as f64 / picked.len().max(1) as f64
+            },
+            target_choices: choices.iter().filter(|c| filter(c.0)).count(),
         }
     };
     let all = errors("all", &|_| true);
@@ -286,6 +363,8 @@ pub fn heldout_errors(
         task_mean: all.task_mean,
         instruction_swap_mm: all.instruction_swap_mm,
         instruction_swaps: all.instruction_swaps,
+        target_accuracy: all.target_accuracy,
+        target_choices: all.target_choices,
         tasks,
         seconds: started.elapsed().as_secs_f64(),
     })

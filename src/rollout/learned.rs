@@ -67,6 +67,7 @@ pub fn policy_observation(instruction: &str, observation: &KeyframeObservation) 
         let k = frame.intrinsics.matrix();
         let e = frame.extrinsics.to_homogeneous();
         cameras.push(CameraView {
+            name: frame.camera.clone(),
             rgb: frame.rgb.clone(),
             depth: frame.depth.clone(),
             intrinsics: std::array::from_fn(|r| std::array::from_fn(|c| k[(r, c)] as f32)),

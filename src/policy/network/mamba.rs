@@ -90,6 +90,20 @@ impl MambaConfig {
         self.d_model.div_ceil(16)
     }
 
+    /// Floating-point operations of one layer on one token (multiply and add counted apart):
+    /// in_proj (x and z halves), the depthwise causal conv, x_proj, dt_proj, the scan (about 9
+    /// per state element: discretisation, update, readout), the gate and out_proj. With
+    /// `full_output` false, the z half, the gate and out_proj are left out: the last layer of an
+    /// inference pass needs them only at the last token.
+    pub fn layer_flops_per_token(&self, full_output: bool) -> f64 {
+        let (c, di, n, r, k) = (self.d_model, self.d_inner(), self.d_state, self.dt_rank(), self.d_conv);
+        let mut flops = 2 * c * di + 2 * di * k + 2 * di * (r + 2 * n) + 2 * r * di + 9 * di * n;
+        if full_output {
+            flops += 2 * c * di + 4 * di + 2 * di * c;
+        }
+        flops as f64
+    }
+
     /// Width of the AdaLN condition.
     pub fn d_cond(&self) -> usize {
         self.d_cond.unwrap_or(self.d_model)

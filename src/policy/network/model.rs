@@ -27,7 +27,7 @@
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
-use crate::policy::config::PolicyConfig;
+use crate::policy::config::{InstructionPooling, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::network::encoding::{positional_encoding, time_embedding};
 use crate::policy::network::image_encoder::{ImageEncoder, ImageEncoderConfig};
@@ -140,6 +140,8 @@ pub struct FlowRam {
     proprio_mlp: Mlp,
     /// The instruction's part of the AdaLN condition (`model.instruction_adaln`).
     instruction_mlp: Option<Mlp>,
+    /// Scores of the instruction's tokens for `model.instruction_pooling = "attention"`.
+    instruction_scores: Option<Linear>,
     time_mlp: Mlp,
     mamba: MambaStack,
     position_head: Mlp,
@@ -178,6 +180,13 @@ impl FlowRam {
             } else {
                 None
             },
+            instruction_scores: if config.model.instruction_adaln
+                && config.model.instruction_pooling == InstructionPooling::Attention
+            {
+                Some(candle_nn::linear(TEXT_HIDDEN_SIZE, 1, vb.pp("instruction_scores"))?)
+            } else {
+                None
+            },
             time_mlp: Mlp::new(c, c, c, vb.pp("time_mlp"))?,
             mamba: MambaStack::new(&mamba_config, vb.pp("mamba"))?,
             position_head: Mlp::new(c, c, 3, vb.pp("position_head"))?,
@@ -194,6 +203,36 @@ impl FlowRam {
     pub fn cells_per_camera(&self) -> usize {
         let g = self.config.observation.image_size / self.config.observation.feature_stride;
         g * g
+    }
+
+    /// Floating-point operations of one keyframe prediction with the inference path (encode
+    /// once, then `steps` Euler steps from the cached prefix), for `cameras` cameras: the image
+    /// encoder, the token projections, the Mamba layers (prefix state, suffix with only the
+    /// action token's output) and the heads. Positional encodings, norms, token selection and
+    /// the text encoder (cached per instruction) are left out. What `flowram bench policy`
+    /// divides by the latency to give the achieved GFLOP/s.
+    pub fn keyframe_flops(&self, cameras: usize, steps: usize) -> f64 {
+        let (c, o) = (self.config.model.channels, &self.config.observation);
+        let mamba = self.mamba.config();
+        let layers = mamba.n_layers as f64;
+        let encoder = ImageEncoderConfig {
+            image_size: o.image_size,
+            patch_size: o.feature_stride,
+            out_channels: c,
+            ..ImageEncoderConfig::default()
+        }
+        .flops(cameras);
+        let scan = |tokens: usize, last_output: bool| -> f64 {
+            let t = tokens as f64;
+            (layers - 1.0) * t * mamba.layer_flops_per_token(true)
+                + t * mamba.layer_flops_per_token(false)
+                + if last_output { mamba.layer_flops_per_token(true) - mamba.layer_flops_per_token(false) } else { 0.0 }
+        };
+        let prefix = 2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c) as f64
+            + scan(o.language_tokens + o.semantic_tokens, false);
+        let heads = 2.0 * (3.0 * (c * c) as f64 + (c * (3 + 6 + 1)) as f64);
+        let step = 2.0 * (ACTION_DIMS * c) as f64 + 2.0 * (c * c) as f64 + scan(o.geometric_tokens + 1, true) + heads;
+        encoder + prefix + steps as f64 * step
     }
 
     /// Image features of every feature pixel, [B * cams * cells, C] (row order: sample, camera,
@@ -225,7 +264,11 @@ impl FlowRam {
         let tokens = Tensor::cat(&[language, semantic], 1)?;
         let mut condition = self.proprio_mlp.forward(&inputs.proprio)?;
         if let Some(mlp) = &self.instruction_mlp {
-            condition = condition.add(&mlp.forward(&inputs.instruction)?)?;
+            let instruction = match &self.instruction_scores {
+                None => inputs.instruction.clone(),
+                Some(scores) => attention_pool(&inputs.language, scores)?,
+            };
+            condition = condition.add(&mlp.forward(&instruction)?)?;
         }
         Ok((tokens, condition))
     }
@@ -262,10 +305,26 @@ impl FlowRam {
         Ok(Velocity { velocity, open_logit })
     }
 
-    /// Training forward, differentiable: the whole sequence in one pass.
+    /// Training forward, differentiable: the whole sequence in one pass. The suffix may hold K
+    /// flow samples per observation (`train.flow_samples`; sample `i` belongs to observation
+    /// `i / K`, and its geometric cells index that observation's features): the image features
+    /// are computed once per observation and the prefix tokens repeated.
     pub fn forward(&self, prefix: &PrefixInputs, suffix: &SuffixInputs) -> Result<Velocity> {
         let features = self.image_features(&prefix.images)?;
-        let (p_tokens, p_cond) = self.prefix_tokens(&features, prefix)?;
+        let (mut p_tokens, mut p_cond) = self.prefix_tokens(&features, prefix)?;
+        let (observations, samples) = (p_cond.dim(0)?, suffix.action.dim(0)?);
+        if samples != observations {
+            if observations == 0 || !samples.is_multiple_of(observations) {
+                return Err(PolicyError::Invalid(format!(
+                    "{samples} flow samples cannot be split evenly over {observations} observations"
+                )));
+            }
+            let k = samples / observations;
+            let owner: Vec<u32> = (0..samples as u32).map(|i| i / k as u32).collect();
+            let owner = Tensor::from_vec(owner, samples, p_cond.device())?;
+            p_tokens = p_tokens.index_select(&owner, 0)?;
+            p_cond = p_cond.index_select(&owner, 0)?;
+        }
         let (s_tokens, s_cond) = self.suffix_tokens(&features, &p_cond, suffix)?;
         let (lp, ls) = (p_tokens.dim(1)?, s_tokens.dim(1)?);
         let x = Tensor::cat(&[p_tokens, s_tokens], 1)?;
@@ -287,6 +346,15 @@ impl FlowRam {
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         self.heads(&last)
     }
+}
+
+/// Softmax pooling of token features [B, L, D] by learned scores, over the non-padding tokens
+/// (padding is all zeros): [B, D].
+fn attention_pool(tokens: &Tensor, scores: &Linear) -> Result<Tensor> {
+    let padding = tokens.abs()?.sum_keepdim(2)?.eq(0f32)?.to_dtype(tokens.dtype())?; // [B, L, 1]
+    let logits = scores.forward(tokens)?.sub(&padding.affine(1e9, 0.0)?)?;
+    let weights = candle_nn::ops::softmax(&logits, 1)?;
+    Ok(tokens.broadcast_mul(&weights)?.sum(1)?)
 }
 
 /// The CPU device the policy runs on.

@@ -22,6 +22,8 @@ pub const ACTION_DIMS: usize = POSITION_DIMS + ROTATION_DIMS;
 /// One camera's images and calibration.
 #[derive(Debug, Clone)]
 pub struct CameraView {
+    /// The camera's name (`front`, `wrist`, ...; see `flowram collect --cameras`).
+    pub name: String,
     /// Row-major H x W x 3 RGB.
     pub rgb: Vec<u8>,
     /// Row-major H x W z-depth in metres (0 = nothing).
@@ -116,6 +118,7 @@ impl Observation {
             let k9 = &episode.intrinsics[c * 9..c * 9 + 9];
             let e16 = &episode.extrinsics[image * 16..image * 16 + 16];
             cameras.push(CameraView {
+                name: episode.cameras[c].clone(),
                 rgb: episode.rgb[image * h * w * 3..(image + 1) * h * w * 3].to_vec(),
                 depth: episode.depth[image * h * w..(image + 1) * h * w].to_vec(),
                 intrinsics: std::array::from_fn(|r| std::array::from_fn(|col| k9[r * 3 + col])),

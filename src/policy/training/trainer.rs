@@ -88,9 +88,11 @@ impl Trainer {
         let mut aug_rng = step_rng_for(t_cfg.seed, step, "augment");
         let mut noise_rng = step_rng_for(t_cfg.seed, step, "noise");
         let b = t_cfg.batch;
+        // K flow samples per observation: rows i * K .. (i + 1) * K belong to observation i.
+        let k = t_cfg.flow_samples;
         let mut samples = Vec::with_capacity(b);
-        let mut targets = Vec::with_capacity(b);
-        let mut opens = Vec::with_capacity(b);
+        let mut targets = Vec::with_capacity(b * k);
+        let mut opens = Vec::with_capacity(b * k);
         let (lo, hi) = (ws.min(), ws.max());
         for _ in 0..b {
             let s = data.draw(&mut draw_rng);
@@ -104,12 +106,14 @@ impl Trainer {
             for a in 0..3 {
                 a1[a] += shift[a];
             }
-            targets.push(a1);
-            opens.push(if action.gripper_open { 1.0f32 } else { 0.0 });
+            for _ in 0..k {
+                targets.push(a1);
+                opens.push(if action.gripper_open { 1.0f32 } else { 0.0 });
+            }
             samples.push((prepared, Augmentation { shift, brightness }));
         }
         let a1 =
-            Tensor::from_vec(targets.iter().flatten().copied().collect::<Vec<f32>>(), (b, ACTION_DIMS), &device())?;
+            Tensor::from_vec(targets.iter().flatten().copied().collect::<Vec<f32>>(), (b * k, ACTION_DIMS), &device())?;
         // Algorithm 1: a0 then t from the noise stream, a_t on the straight path, target a1 - a0.
         let flow = flow_training_sample(&a1, &mut noise_rng, config.flow.time_sampling)?;
         let target = config.flow.prediction.target(&flow, &a1);
@@ -118,11 +122,12 @@ impl Trainer {
             flow.a_t.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
         let refs: Vec<(&PreparedObservation, Augmentation)> = samples.iter().map(|(p, a)| (p.as_ref(), *a)).collect();
         let prefix = prefix_inputs(config, &refs)?;
-        let own: Vec<usize> = (0..b).collect();
-        let suffix = suffix_inputs(config, &refs, &own, &a_t_rows, &t, &config.radius_schedule)?;
+        let own: Vec<usize> = (0..b * k).map(|i| i / k).collect();
+        let per_sample: Vec<(&PreparedObservation, Augmentation)> = own.iter().map(|&i| refs[i]).collect();
+        let suffix = suffix_inputs(config, &per_sample, &own, &a_t_rows, &t, &config.radius_schedule)?;
         let out = self.model.forward(&prefix, &suffix)?;
         let weights = LossWeights { cfm: config.flow.cfm_weight, open: config.flow.open_weight };
-        let open_target = Tensor::from_vec(opens, b, &device())?;
+        let open_target = Tensor::from_vec(opens, b * k, &device())?;
         let (total, cfm, bce) = flow_matching_loss(&out.velocity, &target, &out.open_logit, &open_target, &weights)?;
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;

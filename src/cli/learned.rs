@@ -20,8 +20,9 @@ pub struct LearnedArgs {
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]
     pub no_drs: bool,
-    /// Stop after this many predicted keyframes if the task has not succeeded.
-    #[arg(long, default_value_t = 10)]
+    /// Stop after this many predicted keyframes if the task has not succeeded (25: RLBench's
+    /// evaluation limit, which 3D Diffuser Actor and FlowRAM use; stack_blocks' expert needs 17).
+    #[arg(long, default_value_t = 25)]
     pub max_keyframes: usize,
     /// Cameras the policy sees, in the training datasets' order.
     #[arg(long, value_delimiter = ',', default_values_t = DEFAULT_CAMERAS.map(String::from))]

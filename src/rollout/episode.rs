@@ -204,14 +204,16 @@ fn execute(
 
 /// The expert's keyframes for `variation` at `seed`, planned from the settled start of that
 /// episode and not executed (what `run_episode` with [`Actor::Expert`] goes to first).
+/// Returns the plan with the settled scene's fingerprint ([`World::scene_fingerprint`]).
 pub fn expert_plan(
     task: &dyn Task,
     world: &mut World,
     variation: usize,
     seed: u64,
-) -> Result<Vec<Keyframe>, RolloutError> {
+) -> Result<(Vec<Keyframe>, Vec<f64>), RolloutError> {
     let (state, _, _) = begin(task, world, variation, seed)?;
-    Ok(task.expert(world, &state)?)
+    let fingerprint = world.scene_fingerprint();
+    Ok((task.expert(world, &state)?, fingerprint))
 }
 
 /// Resets the world and the task (seeded), builds the control stack and lets the objects

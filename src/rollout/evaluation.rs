@@ -10,6 +10,7 @@ use serde::Serialize;
 use super::RolloutError;
 use super::episode::{Actor, Observer, camera_rig, expert_plan, run_episode};
 use super::learned::FlowRamActor;
+use crate::control::keyframe::Keyframe;
 use crate::data::Episode;
 use crate::policy::inference::{Policy, SamplingOptions};
 use crate::policy::scene::observation::{KeyframePose, Observation};
@@ -151,8 +152,9 @@ pub struct HeldOutErrors {
     /// Observation / instruction pairs of the probe.
     pub instruction_swaps: usize,
     /// The target probe: of the held-out episodes' first keyframes that the instruction decides
-    /// (the first keyframe the experts of the other variations, in the same scene, place 3 cm or
-    /// more away), the fraction predicted nearer the instructed variation's than any other's.
+    /// (the first keyframe where the expert of another variation, in the same scene, goes 3 cm
+    /// or more elsewhere), the fraction predicted nearer the instructed variation's target than
+    /// any such other target.
     pub target_accuracy: f64,
     /// Keyframes of the target probe.
     pub target_choices: usize,
@@ -239,13 +241,20 @@ fn other_instructions(episode: &Episode, n: usize) -> Vec<String> {
 /// Variations' keyframes this far apart (m) are different targets.
 const DISTINCT_TARGETS_M: f64 = 0.03;
 
-/// A keyframe index and the expert's position there for every variation (world frame, m).
-type InstructedKeyframe = (usize, Vec<[f64; 3]>);
+/// A keyframe that the instruction decides: its index, the instructed variation's expert
+/// position there and the other variations' positions at least [`DISTINCT_TARGETS_M`] from it
+/// (world frame, m).
+struct InstructedKeyframe {
+    k: usize,
+    own: [f64; 3],
+    others: Vec<[f64; 3]>,
+}
 
-/// The first keyframe of `episode` that its instruction decides, and the expert's keyframe there
-/// for every variation of the task in the same scene (same seed): the first index at which the
-/// episode's own expert keyframe is at least [`DISTINCT_TARGETS_M`] from every other variation's.
-/// `None` for tasks this build does not know or whose variations never part.
+/// The first keyframe of `episode` that its instruction decides: the first index at which the
+/// expert of another variation of the task, in the same scene (same seed, and a reset that
+/// leaves every colour and placement as the episode's own), goes at least [`DISTINCT_TARGETS_M`]
+/// from where the episode's own expert goes. `None` for tasks this build does not know, whose
+/// variations never part, or whose variations all change the scene (colour tasks).
 fn instructed_keyframe(
     episode: &Episode,
     world: &mut Option<crate::sim::World>,
@@ -258,14 +267,20 @@ fn instructed_keyframe(
     let plans = (0..task.variation_count())
         .map(|v| expert_plan(task.as_ref(), world, v, episode.seed))
         .collect::<Result<Vec<_>, _>>()?;
-    let own = &plans[episode.variation];
+    let (own, scene) = &plans[episode.variation];
+    // Only variations that lay out the very same scene: in colour tasks the variation also
+    // paints the objects, and another colour's scene is another observation.
+    let same_scene: Vec<&Vec<Keyframe>> =
+        plans.iter().filter(|(_, fingerprint)| fingerprint == scene).map(|(plan, _)| plan).collect();
     for (k, mine) in own.iter().enumerate().take(episode.keyframes()) {
-        let apart = plans.iter().enumerate().filter(|(v, _)| *v != episode.variation).all(|(_, plan)| {
-            plan.get(k).is_none_or(|other| distance(&other.position, &mine.position) >= DISTINCT_TARGETS_M)
-        });
-        if apart {
-            let targets = plans.iter().map(|plan| plan.get(k).map_or([f64::INFINITY; 3], |kf| kf.position)).collect();
-            return Ok(Some((k, targets)));
+        let others: Vec<[f64; 3]> = same_scene
+            .iter()
+            .filter_map(|plan| plan.get(k))
+            .map(|other| other.position)
+            .filter(|p| distance(p, &mine.position) >= DISTINCT_TARGETS_M)
+            .collect();
+        if !others.is_empty() {
+            return Ok(Some(InstructedKeyframe { k, own: mine.position, others }));
         }
     }
     Ok(None)
@@ -315,12 +330,10 @@ pub fn heldout_errors(
                     (d, r, p.gripper_open == target.gripper_open)
                 };
                 rows.push((ti, [row(&predicted), row(&baseline), row(&task_baseline)]));
-                if let Some((_, targets)) = instructed.as_ref().filter(|(at, _)| *at == k) {
+                if let Some(at) = instructed.as_ref().filter(|at| at.k == k) {
                     let p = predicted.position.map(f64::from);
-                    let nearest = (0..targets.len())
-                        .min_by(|&a, &b| distance(&p, &targets[a]).total_cmp(&distance(&p, &targets[b])))
-                        .expect("every task has a variation");
-                    choices.push((ti, nearest == e.variation));
+                    let nearest_other = at.others.iter().map(|o| distance(&p, o)).fold(f64::INFINITY, f64::min);
+                    choices.push((ti, distance(&p, &at.own) < nearest_other));
                 }
                 if k == 0 {
                     for instruction in other_instructions(e, SWAPS_PER_EPISODE) {

@@ -264,6 +264,18 @@ impl World {
         Ok(())
     }
 
+    /// What a camera could tell apart between two resets: every geom's colour, every body's
+    /// placement in its parent and the joint positions, flattened. Equal fingerprints are the
+    /// same scene (e.g. two variations of a task that differ only in the instruction).
+    pub fn scene_fingerprint(&self) -> Vec<f64> {
+        let model = self.model();
+        let mut out: Vec<f64> = model.geom_rgba().iter().flatten().map(|&v| f64::from(v)).collect();
+        out.extend(model.body_pos().iter().flatten());
+        out.extend(model.body_quat().iter().flatten());
+        out.extend(self.data.qpos().iter());
+        out
+    }
+
     /// Moves a fixed (joint-less) body relative to its parent, e.g. to place a task's fixture.
     pub fn set_fixed_body_pose(&mut self, name: &str, pose: &Isometry3<f64>) -> Result<(), SimError> {
         let id = self.body_id(name)?;

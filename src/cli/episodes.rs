@@ -22,7 +22,8 @@ pub enum ActorKind {
     Expert,
     /// Nobody moves (the arm holds still for 5 s).
     Idle,
-    /// A trained FlowRAM checkpoint (--checkpoint), closed loop on rendered observations.
+    /// A trained FlowRAM checkpoint (--checkpoint, default the shipped one), closed loop on
+    /// rendered observations.
     Flowram,
 }
 

@@ -124,7 +124,10 @@ fn policy_commands_name_what_is_missing() {
         &bad,
         std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml"))
             .unwrap()
-            .replace("semantic_tokens = 1024", "semantic_tokens = 0"),
+            .lines()
+            .map(|line| if line.starts_with("semantic_tokens") { "semantic_tokens = 0" } else { line })
+            .collect::<Vec<_>>()
+            .join("\n"),
     )
     .unwrap();
     let err = flowram::policy::config::PolicyConfig::from_toml_file(&bad).unwrap_err().to_string();
@@ -134,9 +137,25 @@ fn policy_commands_name_what_is_missing() {
 #[test]
 fn closed_loop_commands_name_what_is_missing() {
     let dir = tempfile::tempdir().unwrap();
-    let out = common::flowram().args(["run", "--task", "open_drawer", "--policy", "flowram"]).output().unwrap();
-    let err = assert_clean_failure(&out);
-    assert!(err.contains("--checkpoint"), "{err}");
+    // Without --checkpoint, the shipped checkpoint acts.
+    let out = common::flowram()
+        .args([
+            "run",
+            "--task",
+            "open_drawer",
+            "--policy",
+            "flowram",
+            "--seed",
+            "1000",
+            "--max-keyframes",
+            "1",
+            "--json",
+        ])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(report["keyframes"], 1, "{report}");
     let out =
         common::flowram().args(["run", "--task", "open_drawer", "--checkpoint"]).arg(dir.path()).output().unwrap();
     let err = assert_clean_failure(&out);

@@ -175,6 +175,14 @@ fn closed_loop_commands_name_what_is_missing() {
         .unwrap();
     let err = assert_clean_failure(&out);
     assert!(err.contains("juggle") && err.contains("open_drawer"), "unknown task named before loading anything: {err}");
+    // A missing --baseline is named before a single episode runs.
+    let out = common::flowram()
+        .args(["bench", "success", "--tasks", "open_drawer", "--episodes", "50", "--baseline"])
+        .arg(&missing)
+        .output()
+        .unwrap();
+    let err = assert_clean_failure(&out);
+    assert!(err.contains("no_run") && err.contains("no such folder"), "{err}");
     let out =
         common::flowram().args(["bench", "success", "--tasks", "open_drawer", "--episodes", "0"]).output().unwrap();
     let err = assert_clean_failure(&out);

@@ -378,17 +378,18 @@ pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
         cameras: args.learned.cameras.clone(),
     };
     let mut actor = args.learned.load_actor()?;
+    // Loaded before any episode runs, so that a bad --baseline fails at once.
+    let mut baseline_actor = args.baseline.as_deref().map(|path| args.learned.load_actor_from(path)).transpose()?;
     let reports = success_rates(&mut actor, &task_list, &options, &mut TaskBar::new("episodes"))?;
     drop(actor);
-    let Some(baseline) = &args.baseline else {
+    let (Some(baseline), Some(baseline_actor)) = (&args.baseline, baseline_actor.as_mut()) else {
         if args.json {
             return super::print_json(&reports);
         }
         print_success_table(&reports);
         return Ok(());
     };
-    let mut baseline_actor = args.learned.load_actor_from(baseline)?;
-    let baseline_reports = success_rates(&mut baseline_actor, &task_list, &options, &mut TaskBar::new("baseline"))?;
+    let baseline_reports = success_rates(baseline_actor, &task_list, &options, &mut TaskBar::new("baseline"))?;
     let comparison = paired_comparison(&reports, &baseline_reports);
     if args.json {
         #[derive(Serialize)]

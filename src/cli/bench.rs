@@ -21,6 +21,41 @@ pub enum BenchCommand {
     Heldout(super::bench_policy::HeldOutArgs),
     /// Closed-loop success rate of a trained policy on held-out seeds of tasks.
     Success(super::bench_policy::SuccessBenchArgs),
+    /// Wall clock of one collection run whole, then split into shards running side by side on
+    /// this machine and merged (checks that the merge equals the whole run).
+    Shards(ShardsBenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ShardsBenchArgs {
+    #[arg(long, default_value = "slide_block")]
+    task: String,
+    #[arg(long, default_value_t = 30)]
+    episodes: usize,
+    /// Shards, run as parallel processes.
+    #[arg(long, default_value_t = 3)]
+    count: usize,
+    #[arg(long, value_delimiter = ',', default_values_t = flowram::rollout::learned::DEFAULT_CAMERAS.map(String::from))]
+    cameras: Vec<String>,
+    #[arg(long, default_value_t = flowram::sim::camera::DEFAULT_IMAGE_SIZE)]
+    size: usize,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize)]
+struct ShardsReport {
+    task: String,
+    episodes: usize,
+    shards: usize,
+    cores: usize,
+    unsharded_s: f64,
+    /// The shards side by side, until the last finished.
+    sharded_s: f64,
+    merge_s: f64,
+    /// unsharded_s / (sharded_s + merge_s).
+    speedup: f64,
+    merged_equals_unsharded: bool,
 }
 
 #[derive(Debug, Args)]
@@ -116,6 +151,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Policy(args) => super::bench_policy::bench_cmd(args),
         BenchCommand::Heldout(args) => super::bench_policy::heldout_cmd(args),
         BenchCommand::Success(args) => super::bench_policy::success_cmd(args),
+        BenchCommand::Shards(args) => shards(args),
     }
 }
 
@@ -267,4 +303,76 @@ fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
         );
         Ok(())
     }
+}
+
+fn shards(args: ShardsBenchArgs) -> anyhow::Result<()> {
+    use anyhow::Context;
+    anyhow::ensure!(args.episodes > 0 && args.count > 0, "--episodes and --count must be at least 1");
+    let exe = std::env::current_exe().context("locating the flowram binary")?;
+    let dir = std::env::temp_dir().join(format!("flowram-bench-shards-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let collect = |out: &std::path::Path, shard: Option<usize>| {
+        let mut c = std::process::Command::new(&exe);
+        c.args(["collect", "--task", &args.task, "--episodes", &args.episodes.to_string(), "--json"]);
+        c.args(["--cameras", &args.cameras.join(","), "--size", &args.size.to_string(), "--out"]).arg(out);
+        if let Some(i) = shard {
+            c.args(["--shard-index", &i.to_string(), "--shard-count", &args.count.to_string()]);
+        }
+        c.env_remove("SLURM_ARRAY_TASK_ID").env_remove("JOB_COMPLETION_INDEX");
+        c.stdout(std::process::Stdio::null()).stderr(std::process::Stdio::piped());
+        c
+    };
+    let check = |out: std::process::Output, what: &str| {
+        anyhow::ensure!(out.status.success(), "{what} failed: {}", String::from_utf8_lossy(&out.stderr));
+        Ok(())
+    };
+    let result = (|| -> anyhow::Result<ShardsReport> {
+        let whole = dir.join("whole");
+        let start = Instant::now();
+        check(collect(&whole, None).output()?, "the unsharded collection")?;
+        let unsharded_s = start.elapsed().as_secs_f64();
+        let start = Instant::now();
+        let children = (0..args.count)
+            .map(|i| collect(&dir.join(format!("shard{i}")), Some(i)).spawn())
+            .collect::<Result<Vec<_>, _>>()?;
+        for (i, child) in children.into_iter().enumerate() {
+            check(child.wait_with_output()?, &format!("shard {i}"))?;
+        }
+        let sharded_s = start.elapsed().as_secs_f64();
+        let start = Instant::now();
+        let parts: Vec<std::path::PathBuf> = (0..args.count).map(|i| dir.join(format!("shard{i}"))).collect();
+        let merged = dir.join("merged");
+        flowram::rollout::collection::merge_collections(&parts, &merged)?;
+        let merge_s = start.elapsed().as_secs_f64();
+        let same = flowram::data::read_index(&merged)? == flowram::data::read_index(&whole)?;
+        Ok(ShardsReport {
+            task: args.task.clone(),
+            episodes: args.episodes,
+            shards: args.count,
+            cores: std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+            unsharded_s,
+            sharded_s,
+            merge_s,
+            speedup: unsharded_s / (sharded_s + merge_s),
+            merged_equals_unsharded: same,
+        })
+    })();
+    let _ = std::fs::remove_dir_all(&dir);
+    let report = result?;
+    if args.json {
+        return super::print_json(&report);
+    }
+    println!(
+        "{} x {} episodes on {} cores: unsharded {:.1} s; {} shards side by side {:.1} s + merge {:.2} s = {:.2}x; merged index {} the unsharded one",
+        report.task,
+        report.episodes,
+        report.cores,
+        report.unsharded_s,
+        report.shards,
+        report.sharded_s,
+        report.merge_s,
+        report.speedup,
+        if report.merged_equals_unsharded { "equals" } else { "DIFFERS from" }
+    );
+    Ok(())
 }

@@ -14,7 +14,7 @@ use flowram::policy::scene::observation::Observation;
 use flowram::policy::training::data::TrainingData;
 use flowram::policy::training::trainer::Trainer;
 use flowram::rollout::collection::demonstration;
-use flowram::rollout::evaluation::{Errors, SuccessOptions, TaskSuccess, heldout_errors, success_rates};
+use flowram::rollout::evaluation::{Errors, SuccessOptions, SuccessRecord, TaskSuccess, heldout_errors, success_rates};
 use flowram::rollout::learned::DEFAULT_CAMERAS;
 use flowram::sim::Visuals;
 use flowram::stats::{mcnemar_exact_p, median, wilson_interval};
@@ -351,6 +351,13 @@ pub struct SuccessBenchArgs {
     /// McNemar p-value) per task and over all tasks.
     #[arg(long)]
     baseline: Option<PathBuf>,
+    /// Results file: every episode's outcome is written to it as it finishes, with a manifest
+    /// (revision, checkpoint digest, options, shard); a re-run with the same arguments skips the
+    /// episodes it holds. Required with more than one shard (`flowram merge` combines them).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    #[command(flatten)]
+    shard: super::ShardArgs,
     #[arg(long)]
     json: bool,
 }
@@ -371,25 +378,60 @@ struct PairedComparison {
 pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
     anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
     let task_list = args.tasks.iter().map(|name| tasks::by_name(name)).collect::<Result<Vec<_>, _>>()?;
+    let shard = args.shard.resolve()?;
+    anyhow::ensure!(
+        shard.is_whole() || args.out.is_some(),
+        "shard {} of {} needs --out FILE: each shard writes its own results file, and `flowram merge` combines them",
+        shard.index,
+        shard.count
+    );
+    anyhow::ensure!(
+        args.baseline.is_none() || (shard.is_whole() && args.out.is_none()),
+        "--baseline runs both checkpoints in one process: leave out --out and the shard flags, or evaluate each \
+         checkpoint into its own --out files"
+    );
     let options = SuccessOptions {
         episodes: args.episodes,
         seed: args.seed,
         max_keyframes: args.learned.max_keyframes,
         cameras: args.learned.cameras.clone(),
+        shard,
     };
     let mut actor = args.learned.load_actor()?;
     // Loaded before any episode runs, so that a bad --baseline fails at once.
     let mut baseline_actor = args.baseline.as_deref().map(|path| args.learned.load_actor_from(path)).transpose()?;
-    let reports = success_rates(&mut actor, &task_list, &options, &mut TaskBar::new("episodes"))?;
+    let mut record = SuccessRecord::new(&actor, &task_list, &options)?;
+    if let Some(out) = &args.out {
+        record.resume_from(out)?;
+        record.write(out)?;
+    }
+    let out = args.out.clone();
+    let mut save = |r: &SuccessRecord| match &out {
+        Some(path) => r.write(path),
+        None => Ok(()),
+    };
+    let reports =
+        success_rates(&mut actor, &task_list, &options, &mut record, &mut save, &mut TaskBar::new("episodes"))?;
     drop(actor);
     let (Some(baseline), Some(baseline_actor)) = (&args.baseline, baseline_actor.as_mut()) else {
         if args.json {
             return super::print_json(&reports);
         }
+        if !shard.is_whole() {
+            println!("shard {} of {} (merge all shards' --out files with `flowram merge`):", shard.index, shard.count);
+        }
         print_success_table(&reports);
         return Ok(());
     };
-    let baseline_reports = success_rates(baseline_actor, &task_list, &options, &mut TaskBar::new("baseline"))?;
+    let mut baseline_record = SuccessRecord::new(baseline_actor, &task_list, &options)?;
+    let baseline_reports = success_rates(
+        baseline_actor,
+        &task_list,
+        &options,
+        &mut baseline_record,
+        &mut |_| Ok(()),
+        &mut TaskBar::new("baseline"),
+    )?;
     let comparison = paired_comparison(&reports, &baseline_reports);
     if args.json {
         #[derive(Serialize)]
@@ -418,7 +460,7 @@ pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
-fn print_success_table(reports: &[TaskSuccess]) {
+pub(super) fn print_success_table(reports: &[TaskSuccess]) {
     for r in reports {
         println!(
             "  {}: {}/{} successes ({:.0} %, 95 % CI {:.0}-{:.0} %), {:.1} keyframes per episode, {:.0} % reached, inference {:.0} ms (median)",

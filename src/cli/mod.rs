@@ -3,6 +3,7 @@ mod bench;
 mod bench_policy;
 mod episodes;
 mod learned;
+mod merge;
 mod policy;
 mod progress;
 mod render;
@@ -43,6 +44,9 @@ enum Command {
     /// Benchmarks that print the project's performance figures.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Combine the outputs of the shards of one `collect` (dataset folders) or one
+    /// `bench success` (results files) into one dataset or one success table.
+    Merge(merge::MergeArgs),
 }
 
 pub fn run() -> ExitCode {
@@ -56,6 +60,7 @@ pub fn run() -> ExitCode {
         Command::Train(args) => policy::train_cmd(args),
         Command::Predict(args) => policy::predict_cmd(args),
         Command::Bench(cmd) => bench::run(cmd),
+        Command::Merge(args) => merge::run(args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
@@ -82,6 +87,25 @@ impl From<VisualsArg> for flowram::sim::Visuals {
             VisualsArg::Full => Self::Full,
             VisualsArg::Fast => Self::Fast,
         }
+    }
+}
+
+/// Which shard of a collection or evaluation this process runs (see `docs/scale-out.md`).
+#[derive(Debug, clap::Args)]
+struct ShardArgs {
+    /// This process's shard, 0-based [default: SLURM_ARRAY_TASK_ID (minus SLURM_ARRAY_TASK_MIN)
+    /// or JOB_COMPLETION_INDEX when set, else the whole run]. Shard i runs episodes k with
+    /// k mod count = i.
+    #[arg(long)]
+    shard_index: Option<usize>,
+    /// Shards in all [default: SLURM_ARRAY_TASK_COUNT when set, else 1].
+    #[arg(long)]
+    shard_count: Option<usize>,
+}
+
+impl ShardArgs {
+    fn resolve(&self) -> anyhow::Result<flowram::rollout::shard::Shard> {
+        Ok(flowram::rollout::shard::Shard::resolve(self.shard_index, self.shard_count, &|k| std::env::var(k).ok())?)
     }
 }
 

@@ -472,6 +472,39 @@ impl DatasetWriter {
 }
 
 /// A dataset read back: the episodes that loaded, in index order, and the ones that did not.
+impl DatasetWriter {
+    /// Adds the episode file `source` (an entry of another dataset, e.g. a shard's) under the
+    /// next free name, hard-linked when on the same file system, else copied (atomically), and
+    /// lists it with `entry`'s fields. The file is read and checked against `entry` and this
+    /// dataset's task, cameras and image size first.
+    pub fn append_file(&mut self, source: &Path, entry: &IndexEntry) -> Result<PathBuf, DataError> {
+        load_entry(source, &IndexEntry { file: file_name_of(source), ..entry.clone() }, &self.index)?;
+        let mut number = self.index.episodes.len();
+        let name = |n: usize| format!("episode_{n:05}.safetensors");
+        while self.index.episodes.iter().any(|e| e.file == name(number)) {
+            number += 1;
+        }
+        let file = name(number);
+        let path = self.dir.join(&file);
+        let _ = std::fs::remove_file(&path); // a leftover of a killed merge, not in the index
+        if std::fs::hard_link(source, &path).is_err() {
+            let bytes = std::fs::read(source).map_err(|e| DataError::Read { path: source.to_path_buf(), source: e })?;
+            crate::files::write_atomic(&path, &bytes)
+                .map_err(|source| DataError::Write { path: path.clone(), source })?;
+        }
+        self.index.episodes.push(IndexEntry { file, ..entry.clone() });
+        if let Err(e) = write_index(&self.dir, &self.index) {
+            self.index.episodes.pop();
+            return Err(e);
+        }
+        Ok(path)
+    }
+}
+
+fn file_name_of(path: &Path) -> String {
+    path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default()
+}
+
 #[derive(Debug)]
 pub struct LoadedDataset {
     pub index: DatasetIndex,

@@ -1,24 +1,42 @@
 //! Expert demonstrations: episodes of a task's expert observed by cameras at every keyframe,
-//! kept when they succeed, appended to a dataset (`crate::data`, format in the README).
-use std::path::Path;
+//! kept when they succeed, appended to a dataset (`crate::data`, format in the README), with a
+//! manifest of every attempt so that a collection can be split into shards, resumed and merged
+//! (`super::shard`, `docs/scale-out.md`).
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::RolloutError;
 use super::episode::{Actor, Observer, camera_rig, run_episode};
-use crate::data::{Dataset, Episode};
+use super::shard::{Shard, check_shard_set, source_revision};
+use crate::data::{DataError, Dataset, Episode};
+use crate::files::write_atomic;
 use crate::sim::Visuals;
 use crate::tasks::{self, Task};
+
+/// Name of the collection manifest inside a dataset folder.
+pub const MANIFEST_FILE: &str = "manifest.json";
+/// Value of the manifest's `format` field.
+pub const MANIFEST_FORMAT: &str = "flowram-collection-v1";
 
 /// What [`collect`] did.
 #[derive(Debug, Clone, Serialize)]
 pub struct CollectReport {
     pub task: String,
-    /// Episodes in the dataset now (earlier ones included).
+    pub shard: Shard,
+    /// Episodes in the dataset now (those of earlier, interrupted runs included).
     pub episodes: usize,
+    /// Episode slots this shard owns.
+    pub owned: usize,
+    /// Owned slots already done by an earlier run into the same folder (a resumed shard).
+    pub resumed: usize,
+    /// Expert attempts made by this run.
     pub attempts: usize,
+    /// Successful episodes saved by this run.
     pub successes: usize,
+    /// Owned slots whose every attempt failed (left empty).
+    pub given_up: usize,
     pub keyframes_mean: f64,
     pub seconds: f64,
     pub episodes_per_minute: f64,
@@ -26,8 +44,8 @@ pub struct CollectReport {
 
 /// Progress of a collection, for a progress bar.
 pub trait CollectProgress {
-    /// A successful episode was saved.
-    fn saved(&mut self, successes: usize);
+    /// A successful episode was saved (or found done); `done` owned slots are finished.
+    fn saved(&mut self, done: usize);
     /// The expert failed on `seed` (the episode is not saved).
     fn failed(&mut self, seed: u64, reached: usize, keyframes: usize);
 }
@@ -35,21 +53,148 @@ pub trait CollectProgress {
 /// How [`collect`] runs.
 #[derive(Debug, Clone)]
 pub struct CollectOptions {
-    /// Successful episodes to collect.
+    /// Episode slots: the dataset gets one successful episode per slot.
     pub episodes: usize,
-    /// Seed of the first attempt; attempt i uses seed + i (variation = seed modulo variations).
+    /// Base seed: slot k's attempt r uses seed `seed + k + r * episodes` ([`attempt_seed`]).
     pub seed: u64,
-    /// Give up after this many attempts.
-    pub max_attempts: usize,
+    /// Attempts per slot before it is given up (the experts succeed 92-100 %).
+    pub attempts_per_episode: usize,
     /// Cameras to record, in order.
     pub cameras: Vec<String>,
     /// Image size (square, pixels).
     pub size: usize,
+    /// The slots this process collects (`Shard::WHOLE`: all).
+    pub shard: Shard,
 }
 
-/// Runs the expert of `task` until `options.episodes` episodes succeeded (or the attempts run
-/// out) and appends the successful ones to the dataset at `out` (created, or extended if it
-/// holds the same task, cameras and size). Nothing is written before the cameras are checked.
+/// The seed of attempt `attempt` (0-based) of episode slot `slot`: `seed + slot + attempt *
+/// episodes`. Every slot's seeds are its own, so a slot's outcome does not depend on the others
+/// and any split of the slots over shards collects the same episodes. The variation of an
+/// attempt is its seed modulo the task's variations.
+pub fn attempt_seed(seed: u64, episodes: usize, slot: usize, attempt: usize) -> u64 {
+    seed + slot as u64 + (attempt * episodes) as u64
+}
+
+/// One expert attempt, as the manifest records it.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct Attempt {
+    /// The episode slot.
+    pub episode: usize,
+    pub seed: u64,
+    pub success: bool,
+}
+
+/// `manifest.json` of a collected dataset folder: the request that made it, the shard, the
+/// source revision, and every attempt (so a re-run skips what is done, failures included).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CollectionManifest {
+    pub format: String,
+    /// `git describe` of the source tree that collected it (see [`source_revision`]); a merge of
+    /// several lists them all, comma-separated.
+    pub revision: String,
+    pub task: String,
+    pub cameras: Vec<String>,
+    pub image_size: usize,
+    pub seed: u64,
+    pub episodes: usize,
+    pub attempts_per_episode: usize,
+    pub shard: Shard,
+    /// In the order made (slot order).
+    pub attempts: Vec<Attempt>,
+}
+
+impl CollectionManifest {
+    fn new(task: &str, options: &CollectOptions) -> Self {
+        Self {
+            format: MANIFEST_FORMAT.into(),
+            revision: source_revision(),
+            task: task.into(),
+            cameras: options.cameras.clone(),
+            image_size: options.size,
+            seed: options.seed,
+            episodes: options.episodes,
+            attempts_per_episode: options.attempts_per_episode,
+            shard: options.shard,
+            attempts: Vec::new(),
+        }
+    }
+
+    /// The request as a sentence, for error messages.
+    fn request(&self) -> String {
+        format!(
+            "--task {} --episodes {} --seed {} --cameras {} --size {} --attempts-per-episode {} --shard-index {} --shard-count {}",
+            self.task,
+            self.episodes,
+            self.seed,
+            self.cameras.join(","),
+            self.image_size,
+            self.attempts_per_episode,
+            self.shard.index,
+            self.shard.count
+        )
+    }
+
+    fn same_request(&self, other: &Self) -> bool {
+        (&self.task, &self.cameras, self.image_size, self.seed, self.episodes, self.attempts_per_episode, self.shard)
+            == (
+                &other.task,
+                &other.cameras,
+                other.image_size,
+                other.seed,
+                other.episodes,
+                other.attempts_per_episode,
+                other.shard,
+            )
+    }
+
+    /// Whether slot `k` has its episode.
+    fn done(&self, k: usize) -> bool {
+        self.attempts.iter().any(|a| a.episode == k && a.success)
+    }
+
+    /// Attempts made for slot `k`.
+    fn tried(&self, k: usize) -> usize {
+        self.attempts.iter().filter(|a| a.episode == k).count()
+    }
+
+    /// Whether every owned slot is done or given up.
+    pub fn complete(&self) -> bool {
+        self.shard.items(self.episodes).all(|k| self.done(k) || self.tried(k) >= self.attempts_per_episode)
+    }
+
+    /// The manifest of `dir`, `None` when it has none.
+    pub fn read(dir: &Path) -> Result<Option<Self>, RolloutError> {
+        let path = dir.join(MANIFEST_FILE);
+        if !path.exists() {
+            return Ok(None);
+        }
+        let text = std::fs::read(&path).map_err(|source| DataError::Read { path: path.clone(), source })?;
+        let manifest: Self = serde_json::from_slice(&text)
+            .map_err(|e| RolloutError::Manifest { path: path.clone(), problem: e.to_string() })?;
+        if manifest.format != MANIFEST_FORMAT {
+            return Err(RolloutError::Manifest {
+                path,
+                problem: format!("format is {:?}, expected {MANIFEST_FORMAT:?}", manifest.format),
+            });
+        }
+        Ok(Some(manifest))
+    }
+
+    fn write(&self, dir: &Path) -> Result<(), RolloutError> {
+        let path = dir.join(MANIFEST_FILE);
+        let json = serde_json::to_vec_pretty(self)
+            .map_err(|e| RolloutError::Manifest { path: path.clone(), problem: e.to_string() })?;
+        write_atomic(&path, &json).map_err(|source| DataError::Write { path, source })?;
+        Ok(())
+    }
+}
+
+/// Runs the expert of `task` on the episode slots `options.shard` owns, until each has a
+/// successful episode or `attempts_per_episode` failures, appending the successes to the dataset
+/// at `out` in slot order, with `manifest.json` beside its index. A folder that already holds
+/// this very collection (same request and shard) is resumed: slots done or given up are
+/// skipped, so a killed shard re-run neither repeats nor misses a seed. Nothing is written
+/// before the cameras and the folder are checked.
 pub fn collect(
     task: &dyn Task,
     out: &Path,
@@ -59,37 +204,199 @@ pub fn collect(
     if options.episodes == 0 {
         return Err(RolloutError::Zero { what: "the episodes to collect" });
     }
+    if options.attempts_per_episode == 0 {
+        return Err(RolloutError::Zero { what: "the attempts per episode" });
+    }
     let mut world = tasks::load_world(task)?;
     let (mut rig, cameras) = camera_rig(&world, options.size, Visuals::Full, &options.cameras)?;
+    let mut manifest = CollectionManifest::new(task.name(), options);
+    match CollectionManifest::read(out)? {
+        Some(found) if found.same_request(&manifest) => manifest.attempts = found.attempts,
+        Some(found) => {
+            return Err(RolloutError::OtherRun {
+                dir: out.to_path_buf(),
+                found: found.request(),
+                asked: manifest.request(),
+            });
+        }
+        None => {
+            if out.join(crate::data::INDEX_FILE).exists() && !crate::data::read_index(out)?.episodes.is_empty() {
+                return Err(RolloutError::OtherRun {
+                    dir: out.to_path_buf(),
+                    found: "episodes but no manifest.json (an older flowram, or written by hand)".into(),
+                    asked: manifest.request(),
+                });
+            }
+        }
+    }
     let mut writer = Dataset::create_or_open(out, task.name(), &options.cameras, [options.size, options.size])?;
+    // An episode listed by the index but not the manifest: the run was killed between the two
+    // writes. It is done.
+    for entry in &writer.index().episodes {
+        if !manifest.attempts.iter().any(|a| a.seed == entry.seed && a.success) {
+            let slot = (entry.seed.wrapping_sub(options.seed) % options.episodes as u64) as usize;
+            manifest.attempts.push(Attempt { episode: slot, seed: entry.seed, success: true });
+        }
+    }
+    manifest.write(out)?;
     let start = Instant::now();
-    let (mut attempts, mut successes, mut keyframes) = (0usize, 0usize, 0usize);
-    while successes < options.episodes && attempts < options.max_attempts {
-        let seed = options.seed + attempts as u64;
-        attempts += 1;
-        let variation = seed as usize % task.variation_count();
-        let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
-        let result = run_episode(task, &mut world, variation, seed, Actor::Expert, Some(&mut observer))?;
-        if !result.success {
-            progress.failed(seed, result.reached, result.keyframes);
+    let owned = options.shard.items(options.episodes).count();
+    let (mut attempts, mut successes, mut keyframes, mut given_up, mut done) = (0, 0, 0, 0, 0);
+    let resumed = options.shard.items(options.episodes).filter(|&k| manifest.done(k)).count();
+    for k in options.shard.items(options.episodes) {
+        if manifest.done(k) {
+            done += 1;
+            progress.saved(done);
             continue;
         }
-        let episode = result.to_dataset_episode().ok_or(RolloutError::NoImages)?;
-        writer.append(&episode)?;
-        successes += 1;
-        keyframes += result.keyframes;
-        progress.saved(successes);
+        for r in manifest.tried(k)..options.attempts_per_episode {
+            let seed = attempt_seed(options.seed, options.episodes, k, r);
+            let variation = seed as usize % task.variation_count();
+            let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
+            let result = run_episode(task, &mut world, variation, seed, Actor::Expert, Some(&mut observer))?;
+            attempts += 1;
+            if result.success {
+                let episode = result.to_dataset_episode().ok_or(RolloutError::NoImages)?;
+                writer.append(&episode)?;
+                manifest.attempts.push(Attempt { episode: k, seed, success: true });
+                manifest.write(out)?;
+                successes += 1;
+                keyframes += result.keyframes;
+                break;
+            }
+            manifest.attempts.push(Attempt { episode: k, seed, success: false });
+            manifest.write(out)?;
+            progress.failed(seed, result.reached, result.keyframes);
+        }
+        if manifest.done(k) {
+            done += 1;
+            progress.saved(done);
+        } else {
+            given_up += 1;
+        }
     }
     let seconds = start.elapsed().as_secs_f64();
     Ok(CollectReport {
         task: task.name().into(),
+        shard: options.shard,
         episodes: writer.index().episodes.len(),
+        owned,
+        resumed,
         attempts,
         successes,
+        given_up,
         keyframes_mean: if successes > 0 { keyframes as f64 / successes as f64 } else { 0.0 },
         seconds,
         episodes_per_minute: successes as f64 / seconds * 60.0,
     })
+}
+
+/// What [`merge_collections`] made.
+#[derive(Debug, Clone, Serialize)]
+pub struct CollectionMerge {
+    pub task: String,
+    pub shards: usize,
+    pub episodes: usize,
+    /// Slots every attempt of which failed.
+    pub given_up: usize,
+    /// The shards' source revisions (one if they agree).
+    pub revisions: Vec<String>,
+}
+
+/// Merges the dataset folders of all shards of one collection into a new dataset at `out`: the
+/// episodes in slot order (the files hard-linked where possible, else copied), one index and
+/// one manifest, exactly as one unsharded run writes them. Refuses shards of different
+/// collections (task, cameras, image size, seeds, slots, shard count), a missing or repeated
+/// shard, an incomplete shard (re-run it: it resumes), and an `out` that exists and is not
+/// empty.
+pub fn merge_collections(shards: &[PathBuf], out: &Path) -> Result<CollectionMerge, RolloutError> {
+    let refuse = |problem: String| Err(RolloutError::Merge { problem });
+    let mut parts = Vec::with_capacity(shards.len());
+    for dir in shards {
+        let Some(manifest) = CollectionManifest::read(dir)? else {
+            return refuse(format!(
+                "{} has no {MANIFEST_FILE}: not a folder written by `flowram collect` (with this version)",
+                dir.display()
+            ));
+        };
+        let index = crate::data::read_index(dir)?;
+        parts.push((dir, manifest, index));
+    }
+    let Some((first_dir, first, _)) = parts.first() else {
+        return refuse("no shard folders given".into());
+    };
+    let set: Vec<(Shard, String)> = parts.iter().map(|(d, m, _)| (m.shard, d.display().to_string())).collect();
+    check_shard_set(&set).map_err(|problem| RolloutError::Merge { problem })?;
+    let count = first.shard.count;
+    for (dir, m, _) in &parts {
+        let differs = |what: &str, a: String, b: String| {
+            refuse(format!(
+                "{} and {} are shards of different collections: {what} {a} vs {b}",
+                first_dir.display(),
+                dir.display()
+            ))
+        };
+        if m.task != first.task {
+            return differs("task", m.task.clone(), first.task.clone());
+        }
+        if m.cameras != first.cameras {
+            return differs("cameras", format!("{:?}", m.cameras), format!("{:?}", first.cameras));
+        }
+        if m.image_size != first.image_size {
+            return differs("image size", m.image_size.to_string(), first.image_size.to_string());
+        }
+        if (m.seed, m.episodes, m.attempts_per_episode) != (first.seed, first.episodes, first.attempts_per_episode) {
+            return differs(
+                "(seed, episodes, attempts per episode)",
+                format!("{:?}", (m.seed, m.episodes, m.attempts_per_episode)),
+                format!("{:?}", (first.seed, first.episodes, first.attempts_per_episode)),
+            );
+        }
+        if !m.complete() {
+            return refuse(format!(
+                "{} (shard {} of {count}) is incomplete: re-run its `flowram collect` with the same arguments ({}); it resumes",
+                dir.display(),
+                m.shard.index,
+                m.request()
+            ));
+        }
+    }
+    if out.exists() && std::fs::read_dir(out).map(|mut d| d.next().is_some()).unwrap_or(true) {
+        return refuse(format!("{} exists and is not empty: merge into a new folder", out.display()));
+    }
+    // Every episode, in slot order.
+    let mut episodes = Vec::new();
+    for (dir, m, index) in &parts {
+        for entry in &index.episodes {
+            let slot = m.attempts.iter().find(|a| a.seed == entry.seed && a.success).map(|a| a.episode);
+            let Some(slot) = slot else {
+                return refuse(format!(
+                    "{} lists seed {} but its manifest has no success for it",
+                    dir.display(),
+                    entry.seed
+                ));
+            };
+            episodes.push((slot, dir.join(&entry.file), entry.clone()));
+        }
+    }
+    episodes.sort_by_key(|(slot, _, _)| *slot);
+    let mut merged = CollectionManifest {
+        shard: Shard::WHOLE,
+        attempts: parts.iter().flat_map(|(_, m, _)| m.attempts.iter().copied()).collect(),
+        ..first.clone()
+    };
+    merged.attempts.sort_by_key(|a| (a.episode, a.seed));
+    let mut revisions: Vec<String> = parts.iter().map(|(_, m, _)| m.revision.clone()).collect();
+    revisions.sort();
+    revisions.dedup();
+    merged.revision = revisions.join(",");
+    let mut writer = Dataset::create_or_open(out, &first.task, &first.cameras, [first.image_size, first.image_size])?;
+    for (_, file, entry) in &episodes {
+        writer.append_file(file, entry)?;
+    }
+    merged.write(out)?;
+    let given_up = (0..first.episodes).filter(|&k| !merged.done(k)).count();
+    Ok(CollectionMerge { task: first.task.clone(), shards: count, episodes: episodes.len(), given_up, revisions })
 }
 
 /// One expert demonstration of `task` (variation, seed) seen by `cameras` at `size` pixels with

@@ -1,17 +1,23 @@
 //! Evaluations of a trained policy:
-//! - closed-loop success rates on held-out seeds of tasks ([`success_rates`]);
+//! - closed-loop success rates on held-out seeds of tasks ([`success_rates`]), recorded per
+//!   episode in a [`SuccessRecord`] that a sharded evaluation writes, resumes and merges
+//!   ([`merge_success_records`]);
 //! - held-out keyframe errors (position, rotation, gripper) against two trivial baselines,
 //!   always the training set's mean keyframe and always the mean keyframe of the same task
 //!   ([`heldout_errors`]).
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use super::RolloutError;
 use super::episode::{Actor, Observer, camera_rig, expert_plan, run_episode};
 use super::learned::FlowRamActor;
+use super::shard::{Shard, check_shard_set, source_revision};
 use crate::control::keyframe::Keyframe;
-use crate::data::Episode;
+use crate::data::{DataError, Episode};
+use crate::files::write_atomic;
+use crate::policy::checkpoint::format::weights_digest;
 use crate::policy::inference::{Policy, SamplingOptions};
 use crate::policy::scene::observation::{KeyframePose, Observation};
 use crate::policy::scene::rotation::{quaternion_from_6d, quaternion_to_6d};
@@ -45,6 +51,8 @@ pub struct SuccessOptions {
     pub max_keyframes: usize,
     /// Cameras the policy sees, in the training datasets' order.
     pub cameras: Vec<String>,
+    /// The episodes this process runs: episode i of every task when the shard owns i.
+    pub shard: Shard,
 }
 
 /// Closed-loop success of one task.
@@ -60,24 +68,206 @@ pub struct TaskSuccess {
     pub keyframes: f64,
     /// Fraction of predicted keyframes the controller reached (IK solvable, tracked to tolerance).
     pub reached: f64,
+    /// Median over the episodes of each episode's median inference time (ms).
     pub inference_ms_median: f64,
-    /// The seed of each episode and whether it succeeded, in order.
+    /// The seed of each episode and whether it succeeded, in seed order.
     pub outcomes: Vec<SeedOutcome>,
 }
 
+impl TaskSuccess {
+    /// The table row of `task` from its episodes' outcomes (any order; sorted by seed here).
+    pub fn from_outcomes(task: &str, outcomes: &[SeedOutcome]) -> Self {
+        let mut outcomes = outcomes.to_vec();
+        outcomes.sort_by_key(|o| o.seed);
+        let n = outcomes.len();
+        let successes = outcomes.iter().filter(|o| o.success).count();
+        let keyframes: usize = outcomes.iter().map(|o| o.keyframes).sum();
+        let reached: usize = outcomes.iter().map(|o| o.reached).sum();
+        let inference: Vec<f64> = outcomes.iter().map(|o| o.inference_ms).collect();
+        Self {
+            task: task.into(),
+            episodes: n,
+            successes,
+            success_rate: successes as f64 / n.max(1) as f64,
+            success_ci95: wilson_interval(successes, n),
+            keyframes: keyframes as f64 / n.max(1) as f64,
+            reached: if keyframes > 0 { reached as f64 / keyframes as f64 } else { 0.0 },
+            inference_ms_median: median(&inference),
+            outcomes,
+        }
+    }
+}
+
 /// One closed-loop episode's result.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SeedOutcome {
     pub seed: u64,
     pub variation: usize,
     pub success: bool,
+    /// Keyframes predicted, and how many of them the controller reached.
+    pub keyframes: usize,
+    pub reached: usize,
+    /// Median wall-clock inference time of the episode's predictions (ms; timing, so it differs
+    /// from run to run).
+    pub inference_ms: f64,
 }
 
-/// Closed-loop success rates of `actor` on `options.episodes` held-out seeds of each task.
+/// Value of the `format` field of a results file.
+pub const SUCCESS_FORMAT: &str = "flowram-success-v1";
+
+/// One episode of one task, as a results file records it.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RecordedOutcome {
+    /// Index of the task in [`SuccessRecord::tasks`].
+    pub task: usize,
+    #[serde(flatten)]
+    pub outcome: SeedOutcome,
+}
+
+/// The results file of `bench success --out` (one per shard): what was evaluated, how, by
+/// which source revision, and every episode's outcome so far. A re-run with the same
+/// arguments skips the episodes it holds; `flowram merge` combines the shards' files.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SuccessRecord {
+    pub format: String,
+    /// `git describe` of the source tree that ran it (a merge lists every shard's, comma-separated).
+    pub revision: String,
+    /// The checkpoint folder evaluated, and [`weights_digest`] of it.
+    pub checkpoint: String,
+    pub checkpoint_digest: String,
+    pub tasks: Vec<String>,
+    pub episodes: usize,
+    pub seed: u64,
+    pub max_keyframes: usize,
+    /// Sampling: Euler steps and DRS.
+    pub steps: usize,
+    pub drs: bool,
+    pub cameras: Vec<String>,
+    pub shard: Shard,
+    pub outcomes: Vec<RecordedOutcome>,
+}
+
+impl SuccessRecord {
+    /// An empty record of `actor` evaluated on `task_list` with `options`.
+    pub fn new(
+        actor: &FlowRamActor,
+        task_list: &[Box<dyn Task>],
+        options: &SuccessOptions,
+    ) -> Result<Self, RolloutError> {
+        let (checkpoint, checkpoint_digest) = match &actor.policy.checkpoint {
+            Some(dir) => (dir.display().to_string(), weights_digest(dir)?),
+            None => ("random initialisation".into(), "random".into()),
+        };
+        Ok(Self {
+            format: SUCCESS_FORMAT.into(),
+            revision: source_revision(),
+            checkpoint,
+            checkpoint_digest,
+            tasks: task_list.iter().map(|t| t.name().to_string()).collect(),
+            episodes: options.episodes,
+            seed: options.seed,
+            max_keyframes: options.max_keyframes,
+            steps: actor.options.steps,
+            drs: actor.options.drs,
+            cameras: options.cameras.clone(),
+            shard: options.shard,
+            outcomes: Vec::new(),
+        })
+    }
+
+    /// The same evaluation (all but the outcomes, the revision and the checkpoint's path)?
+    fn same_evaluation(&self, other: &Self) -> Result<(), String> {
+        let fields = |r: &Self| {
+            format!(
+                "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, drs {}, cameras {:?}",
+                r.checkpoint_digest, r.tasks, r.episodes, r.seed, r.max_keyframes, r.steps, r.drs, r.cameras
+            )
+        };
+        let (a, b) = (fields(self), fields(other));
+        if a == b { Ok(()) } else { Err(format!("{a} vs {b}")) }
+    }
+
+    fn outcome(&self, task: usize, seed: u64) -> Option<&SeedOutcome> {
+        self.outcomes.iter().find(|o| o.task == task && o.outcome.seed == seed).map(|o| &o.outcome)
+    }
+
+    /// Whether every episode of the shard is recorded.
+    pub fn complete(&self) -> bool {
+        (0..self.tasks.len())
+            .all(|t| self.shard.items(self.episodes).all(|i| self.outcome(t, self.seed + i as u64).is_some()))
+    }
+
+    /// The success table of the recorded outcomes, one row per task.
+    pub fn table(&self) -> Vec<TaskSuccess> {
+        (0..self.tasks.len())
+            .map(|t| {
+                let outcomes: Vec<SeedOutcome> =
+                    self.outcomes.iter().filter(|o| o.task == t).map(|o| o.outcome).collect();
+                TaskSuccess::from_outcomes(&self.tasks[t], &outcomes)
+            })
+            .collect()
+    }
+
+    /// Reads a results file; `None` when there is none.
+    pub fn read(path: &Path) -> Result<Option<Self>, RolloutError> {
+        if !path.exists() {
+            return Ok(None);
+        }
+        let text = std::fs::read(path).map_err(|source| DataError::Read { path: path.to_path_buf(), source })?;
+        let record: Self = serde_json::from_slice(&text)
+            .map_err(|e| RolloutError::Manifest { path: path.to_path_buf(), problem: e.to_string() })?;
+        if record.format != SUCCESS_FORMAT {
+            return Err(RolloutError::Manifest {
+                path: path.to_path_buf(),
+                problem: format!("format is {:?}, expected {SUCCESS_FORMAT:?}", record.format),
+            });
+        }
+        Ok(Some(record))
+    }
+
+    /// Writes the file atomically.
+    pub fn write(&self, path: &Path) -> Result<(), RolloutError> {
+        let json = serde_json::to_vec_pretty(self)
+            .map_err(|e| RolloutError::Manifest { path: path.to_path_buf(), problem: e.to_string() })?;
+        write_atomic(path, &json).map_err(|source| DataError::Write { path: path.to_path_buf(), source })?;
+        Ok(())
+    }
+
+    /// Continues the results file at `path` if it holds this very evaluation (same checkpoint
+    /// weights, tasks, seeds, sampling and shard): its outcomes are kept and those episodes are
+    /// not run again. Any other file there is an error, never overwritten.
+    pub fn resume_from(&mut self, path: &Path) -> Result<(), RolloutError> {
+        let Some(found) = Self::read(path)? else { return Ok(()) };
+        let describe = |r: &Self| format!("{} (shard {} of {})", r.checkpoint, r.shard.index, r.shard.count);
+        if let Err(difference) = self.same_evaluation(&found) {
+            return Err(RolloutError::OtherRun {
+                dir: path.to_path_buf(),
+                found: format!("{}: {difference}", describe(&found)),
+                asked: describe(self),
+            });
+        }
+        if found.shard != self.shard {
+            return Err(RolloutError::OtherRun {
+                dir: path.to_path_buf(),
+                found: describe(&found),
+                asked: describe(self),
+            });
+        }
+        self.outcomes = found.outcomes;
+        Ok(())
+    }
+}
+
+/// Closed-loop success rates of `actor` on the held-out seeds of each task that
+/// `options.shard` owns. Episodes already in `record` are not run again; each new outcome is
+/// added to it and `save` is called with it (to write the results file after every episode, so
+/// a killed shard loses at most the episode it was in). Returns the table of `record`.
 pub fn success_rates(
     actor: &mut FlowRamActor,
     task_list: &[Box<dyn Task>],
     options: &SuccessOptions,
+    record: &mut SuccessRecord,
+    save: &mut dyn FnMut(&SuccessRecord) -> Result<(), RolloutError>,
     progress: &mut dyn EvaluationProgress,
 ) -> Result<Vec<TaskSuccess>, RolloutError> {
     if options.episodes == 0 {
@@ -86,41 +276,79 @@ pub fn success_rates(
     if options.max_keyframes == 0 {
         return Err(RolloutError::Zero { what: "the keyframes per episode" });
     }
-    let mut reports = Vec::with_capacity(task_list.len());
-    for task in task_list {
+    for (t, task) in task_list.iter().enumerate() {
         let mut world = tasks::load_world(task.as_ref())?;
-        actor.inference_ms.clear();
         let size = actor.policy.config().observation.image_size;
         let (mut rig, cameras) = camera_rig(&world, size, Visuals::Full, &options.cameras)?;
-        progress.started(task.name(), options.episodes);
-        let (mut successes, mut keyframes, mut reached) = (0usize, 0usize, 0usize);
-        let mut outcomes = Vec::with_capacity(options.episodes);
-        for i in 0..options.episodes {
+        let owned: Vec<usize> = options.shard.items(options.episodes).collect();
+        progress.started(task.name(), owned.len());
+        for (done, i) in owned.into_iter().enumerate() {
             let seed = options.seed + i as u64;
+            if record.outcome(t, seed).is_some() {
+                progress.advanced(done + 1);
+                continue;
+            }
             let variation = seed as usize % task.variation_count();
             let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
+            actor.inference_ms.clear();
             let policy = Actor::Policy { policy: &mut *actor, max_keyframes: options.max_keyframes };
             let result = run_episode(task.as_ref(), &mut world, variation, seed, policy, Some(&mut observer))?;
-            successes += usize::from(result.success);
-            keyframes += result.keyframes;
-            reached += result.reached;
-            outcomes.push(SeedOutcome { seed, variation, success: result.success });
-            progress.advanced(i + 1);
+            let outcome = SeedOutcome {
+                seed,
+                variation,
+                success: result.success,
+                keyframes: result.keyframes,
+                reached: result.reached,
+                inference_ms: median(&actor.inference_ms),
+            };
+            record.outcomes.push(RecordedOutcome { task: t, outcome });
+            save(record)?;
+            progress.advanced(done + 1);
         }
         progress.finished();
-        reports.push(TaskSuccess {
-            task: task.name().into(),
-            episodes: options.episodes,
-            successes,
-            success_rate: successes as f64 / options.episodes as f64,
-            success_ci95: wilson_interval(successes, options.episodes),
-            keyframes: keyframes as f64 / options.episodes as f64,
-            reached: if keyframes > 0 { reached as f64 / keyframes as f64 } else { 0.0 },
-            inference_ms_median: median(&actor.inference_ms),
-            outcomes,
-        });
     }
-    Ok(reports)
+    Ok(record.table())
+}
+
+/// Merges the results files of all shards of one evaluation: the merged record (shard
+/// [`Shard::WHOLE`], outcomes in task and seed order) whose [`SuccessRecord::table`] is what
+/// one unsharded run prints. Refuses files of different evaluations (checkpoint weights, tasks,
+/// seeds, sampling, cameras, shard count), a missing or repeated shard, and an incomplete one.
+pub fn merge_success_records(files: &[PathBuf]) -> Result<SuccessRecord, RolloutError> {
+    let refuse = |problem: String| Err(RolloutError::Merge { problem });
+    let mut records = Vec::with_capacity(files.len());
+    for path in files {
+        match SuccessRecord::read(path)? {
+            Some(r) => records.push((path, r)),
+            None => return refuse(format!("{} does not exist", path.display())),
+        }
+    }
+    let Some((first_path, first)) = records.first() else { return refuse("no results files given".into()) };
+    let set: Vec<(Shard, String)> = records.iter().map(|(p, r)| (r.shard, p.display().to_string())).collect();
+    check_shard_set(&set).map_err(|problem| RolloutError::Merge { problem })?;
+    let count = first.shard.count;
+    for (path, r) in &records {
+        if let Err(difference) = first.same_evaluation(r) {
+            return refuse(format!(
+                "{} and {} are shards of different evaluations: {difference}",
+                first_path.display(),
+                path.display()
+            ));
+        }
+        if !r.complete() {
+            return refuse(format!(
+                "{} (shard {} of {count}) is incomplete: re-run its `flowram bench success` with the same arguments; it resumes",
+                path.display(),
+                r.shard.index
+            ));
+        }
+    }
+    let mut revisions: Vec<String> = records.iter().map(|(_, r)| r.revision.clone()).collect();
+    revisions.sort();
+    revisions.dedup();
+    let mut outcomes: Vec<RecordedOutcome> = records.iter().flat_map(|(_, r)| r.outcomes.iter().copied()).collect();
+    outcomes.sort_by_key(|o| (o.task, o.outcome.seed));
+    Ok(SuccessRecord { revision: revisions.join(","), shard: Shard::WHOLE, outcomes, ..first.clone() })
 }
 
 /// Summary of keyframe errors.

@@ -8,11 +8,14 @@
 //!   simulation;
 //! - [`collection`]: expert demonstrations collected into datasets;
 //! - [`evaluation`]: closed-loop success rates on held-out seeds, and held-out keyframe errors
-//!   against trivial baselines.
+//!   against trivial baselines;
+//! - [`shard`]: splitting collection and evaluation over processes and machines (which seeds a
+//!   shard owns; the scheduler's environment), for `flowram merge` to combine.
 pub mod collection;
 pub mod episode;
 pub mod evaluation;
 pub mod learned;
+pub mod shard;
 pub mod stack;
 
 use crate::control::backend::BackendError;
@@ -64,4 +67,18 @@ pub enum RolloutError {
     /// A baseline of the held-out evaluation has no training keyframes to average.
     #[error("no training keyframes of {of} to form a baseline from")]
     NoBaseline { of: String },
+    #[error(transparent)]
+    Shard(#[from] shard::ShardError),
+    /// A manifest or results file that cannot be read as one.
+    #[error("{} is not a valid flowram manifest ({problem}); delete it and re-run the shard", path.display())]
+    Manifest { path: std::path::PathBuf, problem: String },
+    /// An output folder or file that already holds other work.
+    #[error(
+        "{} already holds another run: {found}; this one is {asked}. Re-run with the same arguments to resume it, or write to a new path",
+        dir.display()
+    )]
+    OtherRun { dir: std::path::PathBuf, found: String, asked: String },
+    /// Shard outputs that cannot be merged.
+    #[error("cannot merge: {problem}")]
+    Merge { problem: String },
 }

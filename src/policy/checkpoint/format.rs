@@ -48,6 +48,18 @@ pub(super) fn digest_of(path: &Path) -> Result<(FileDigest, Vec<u8>)> {
     Ok((digest, bytes))
 }
 
+/// What a policy loaded from checkpoint folder `dir` computes with: FNV-1a 64 (hex) of its
+/// `config.json` and its EMA weights. Two folders with equal digests act the same; the
+/// manifests of sharded evaluations compare it.
+pub fn weights_digest(dir: &Path) -> Result<String> {
+    let mut h = fnv1a64(&[]);
+    for file in [CONFIG_FILE, EMA_FILE] {
+        let (_, bytes) = digest_of(&dir.join(file))?;
+        h = (h ^ fnv1a64(&bytes)).wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    Ok(format!("{h:016x}"))
+}
+
 /// The trainer's progress, saved as `trainer.json`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TrainerState {

@@ -1,0 +1,199 @@
+//! Sharded collection and evaluation: shards run in parallel processes, merged, equal one
+//! unsharded run; a killed shard resumes without a duplicate or missing seed; shards of
+//! different work are refused.
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output};
+use std::time::{Duration, Instant};
+
+use flowram::data::{load_dataset, read_index};
+use flowram::rollout::collection::CollectionManifest;
+use flowram::rollout::evaluation::SuccessRecord;
+use serde_json::Value;
+
+fn ok(out: Output) -> Output {
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    out
+}
+
+fn failed_with(out: Output, needles: &[&str]) {
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("panicked"), "{err}");
+    for n in needles {
+        assert!(err.contains(n), "expected {n:?} in: {err}");
+    }
+}
+
+fn collect(task: &str, episodes: usize, out: &Path, shard: Option<(usize, usize)>) -> Command {
+    let mut c = common::flowram();
+    c.args(["collect", "--task", task, "--episodes", &episodes.to_string(), "--seed", "40"]);
+    c.args(["--cameras", "front", "--size", "64", "--json", "--out"]).arg(out);
+    if let Some((i, n)) = shard {
+        c.args(["--shard-index", &i.to_string(), "--shard-count", &n.to_string()]);
+    }
+    c.env_remove("SLURM_ARRAY_TASK_ID").env_remove("JOB_COMPLETION_INDEX");
+    c
+}
+
+fn wait_all(children: Vec<Child>) {
+    for child in children {
+        ok(child.wait_with_output().unwrap());
+    }
+}
+
+#[test]
+fn three_collection_shards_merge_into_the_unsharded_dataset() {
+    let dir = tempfile::tempdir().unwrap();
+    let whole = dir.path().join("whole");
+    let shards: Vec<PathBuf> = (0..3).map(|i| dir.path().join(format!("shard{i}"))).collect();
+    let children =
+        (0..3).map(|i| collect("slide_block", 7, &shards[i], Some((i, 3))).spawn().unwrap()).collect::<Vec<_>>();
+    ok(collect("slide_block", 7, &whole, None).output().unwrap());
+    wait_all(children);
+    for (i, s) in shards.iter().enumerate() {
+        let seeds: Vec<u64> = read_index(s).unwrap().episodes.iter().map(|e| e.seed).collect();
+        assert!(seeds.iter().all(|&seed| (seed - 40) % 7 % 3 == i as u64), "shard {i} owns its slots: {seeds:?}");
+    }
+    let merged = dir.path().join("merged");
+    let out =
+        ok(common::flowram().arg("merge").args(&shards).arg("--out").arg(&merged).arg("--json").output().unwrap());
+    let report: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!((report["episodes"].as_u64(), report["shards"].as_u64()), (Some(7), Some(3)));
+
+    assert_eq!(read_index(&merged).unwrap(), read_index(&whole).unwrap());
+    let (a, b) = (load_dataset(&merged).unwrap(), load_dataset(&whole).unwrap());
+    assert!(a.failures.is_empty() && b.failures.is_empty());
+    assert_eq!(a.episodes.len(), 7);
+    assert_eq!(a.episodes, b.episodes, "the same episodes, images included, in the same order");
+    let (ma, mb) =
+        (CollectionManifest::read(&merged).unwrap().unwrap(), CollectionManifest::read(&whole).unwrap().unwrap());
+    assert_eq!(ma.attempts, mb.attempts);
+
+    // Refused: a shard twice, a missing shard, a shard of another task, a non-empty --out.
+    let merge = |dirs: &[&PathBuf], out: &Path| {
+        common::flowram().arg("merge").args(dirs.iter().map(|d| d.as_path())).arg("--out").arg(out).output().unwrap()
+    };
+    failed_with(merge(&[&shards[0], &shards[0], &shards[1]], &dir.path().join("m1")), &["given twice"]);
+    failed_with(merge(&[&shards[0], &shards[2]], &dir.path().join("m2")), &["missing", "[1]"]);
+    let other = dir.path().join("other");
+    ok(collect("open_drawer", 7, &other, Some((1, 3))).output().unwrap());
+    failed_with(merge(&[&shards[0], &other, &shards[2]], &dir.path().join("m3")), &["different collections", "task"]);
+    failed_with(merge(&[&shards[0], &shards[1], &shards[2]], &merged), &["not empty"]);
+    assert!(!dir.path().join("m1").exists() && !dir.path().join("m3").exists(), "nothing written when refused");
+
+    // Another request into a shard's folder is refused and writes nothing.
+    let before = std::fs::read(shards[0].join("manifest.json")).unwrap();
+    failed_with(
+        collect("slide_block", 8, &shards[0], Some((0, 3))).output().unwrap(),
+        &["already holds", "--episodes 7"],
+    );
+    assert_eq!(std::fs::read(shards[0].join("manifest.json")).unwrap(), before);
+}
+
+#[test]
+fn a_killed_collection_shard_resumes_without_duplicates_or_gaps() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("shard");
+    let mut child = collect("open_drawer", 12, &out, Some((0, 2))).spawn().unwrap();
+    let start = Instant::now();
+    loop {
+        let done =
+            CollectionManifest::read(&out).ok().flatten().map(|m| m.attempts.iter().filter(|a| a.success).count());
+        if done.unwrap_or(0) >= 2 {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(120), "the shard saved no episode in 2 minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    let killed = CollectionManifest::read(&out).unwrap().unwrap();
+    assert!(!killed.complete(), "killed before the end (6 slots of about 1 s each)");
+
+    let report: Value =
+        serde_json::from_slice(&ok(collect("open_drawer", 12, &out, Some((0, 2))).output().unwrap()).stdout).unwrap();
+    assert!(report["resumed"].as_u64().unwrap() >= 2, "{report}");
+    let seeds: Vec<u64> = read_index(&out).unwrap().episodes.iter().map(|e| e.seed).collect();
+    assert_eq!(seeds, vec![40, 42, 44, 46, 48, 50], "every owned slot once, in order");
+    assert!(load_dataset(&out).unwrap().failures.is_empty());
+    // Run again: nothing to do, nothing changes.
+    let index = std::fs::read(out.join("index.json")).unwrap();
+    let report: Value =
+        serde_json::from_slice(&ok(collect("open_drawer", 12, &out, Some((0, 2))).output().unwrap()).stdout).unwrap();
+    assert_eq!((report["attempts"].as_u64(), report["resumed"].as_u64()), (Some(0), Some(6)));
+    assert_eq!(std::fs::read(out.join("index.json")).unwrap(), index);
+}
+
+fn success(out: Option<&Path>, shard: Option<(usize, usize)>, max_keyframes: usize) -> Command {
+    let mut c = common::flowram();
+    c.args(["bench", "success", "--tasks", "open_drawer,slide_block", "--episodes", "4", "--seed", "1000"]);
+    c.args(["--max-keyframes", &max_keyframes.to_string(), "--json"]);
+    if let Some(out) = out {
+        c.arg("--out").arg(out);
+    }
+    if let Some((i, n)) = shard {
+        c.args(["--shard-index", &i.to_string(), "--shard-count", &n.to_string()]);
+    }
+    c.env_remove("SLURM_ARRAY_TASK_ID").env_remove("JOB_COMPLETION_INDEX");
+    c
+}
+
+/// A success table without its timings.
+fn untimed(mut table: Value) -> Value {
+    for row in table.as_array_mut().unwrap() {
+        row.as_object_mut().unwrap().remove("inference_ms_median");
+        for o in row["outcomes"].as_array_mut().unwrap() {
+            o.as_object_mut().unwrap().remove("inference_ms");
+        }
+    }
+    table
+}
+
+#[test]
+fn three_evaluation_shards_merge_into_the_unsharded_table_and_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let files: Vec<PathBuf> = (0..3).map(|i| dir.path().join(format!("s{i}.json"))).collect();
+    let children = (0..3).map(|i| success(Some(&files[i]), Some((i, 3)), 2).spawn().unwrap()).collect::<Vec<_>>();
+    let whole: Value = serde_json::from_slice(&ok(success(None, None, 2).output().unwrap()).stdout).unwrap();
+    wait_all(children);
+    let merged_file = dir.path().join("merged.json");
+    let out =
+        ok(common::flowram().arg("merge").args(&files).arg("--out").arg(&merged_file).arg("--json").output().unwrap());
+    let merged: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(untimed(merged.clone()), untimed(whole.clone()));
+    assert_eq!(merged[0]["episodes"], 4);
+    let record = SuccessRecord::read(&merged_file).unwrap().unwrap();
+    assert_eq!(record.outcomes.len(), 8);
+
+    // A killed shard resumes: its file is rewritten after every episode.
+    let resumed = dir.path().join("resumed.json");
+    let mut child = success(Some(&resumed), Some((0, 1)), 2).spawn().unwrap();
+    let start = Instant::now();
+    while SuccessRecord::read(&resumed).ok().flatten().is_none_or(|r| r.outcomes.is_empty()) {
+        assert!(start.elapsed() < Duration::from_secs(300), "no episode finished in 5 minutes");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!SuccessRecord::read(&resumed).unwrap().unwrap().complete());
+    let again: Value =
+        serde_json::from_slice(&ok(success(Some(&resumed), Some((0, 1)), 2).output().unwrap()).stdout).unwrap();
+    assert_eq!(untimed(again), untimed(whole));
+    let record = SuccessRecord::read(&resumed).unwrap().unwrap();
+    let mut keys: Vec<(usize, u64)> = record.outcomes.iter().map(|o| (o.task, o.outcome.seed)).collect();
+    keys.sort();
+    keys.dedup();
+    assert_eq!(keys.len(), 8, "each episode once");
+
+    // Refused: another evaluation's file, a missing shard, shards without --out.
+    let other = dir.path().join("other.json");
+    ok(success(Some(&other), Some((1, 3)), 1).output().unwrap());
+    let merge =
+        |paths: &[&PathBuf]| common::flowram().arg("merge").args(paths.iter().map(|p| p.as_path())).output().unwrap();
+    failed_with(merge(&[&files[0], &other, &files[2]]), &["different evaluations", "max keyframes"]);
+    failed_with(merge(&[&files[0], &files[1]]), &["missing"]);
+    failed_with(success(None, Some((0, 3)), 2).output().unwrap(), &["--out"]);
+    failed_with(success(Some(&files[0]), Some((0, 3)), 3).output().unwrap(), &["already holds"]);
+}

@@ -50,6 +50,9 @@ fn instructions_follow_the_templates() {
         let (count, colour) = rest.split_once(' ').unwrap();
         assert!(["2", "3", "4"].contains(&count) && colors.contains(&colour), "{text}");
     }
+    let grill = tasks::by_name("meat_off_grill").unwrap();
+    assert_eq!(grill.variation_count(), 2);
+    assert!((0..2).all(|v| matches_template(&grill.instruction(v), "take the _ off the grill", &["chicken", "steak"])));
     let err = tasks::by_name("juggle").err().unwrap().to_string();
     assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
 }
@@ -102,6 +105,46 @@ fn open_drawer_expert_succeeds_and_idling_does_not() {
     let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
     assert!(expert >= 9, "expert solved {expert}/10");
     assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn meat_off_grill_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("meat_off_grill").unwrap();
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn meat_off_grill_success_rejects_near_misses() {
+    use nalgebra::{Isometry3, Translation3};
+    use rand::SeedableRng;
+    let task = tasks::by_name("meat_off_grill").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    world.reset_to("home").unwrap();
+    let state = task.reset(&mut world, 0, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    assert_eq!(state.targets, ["chicken", "steak"]);
+    assert!(!task.success(&world, &state), "nothing moved yet");
+    let plate = world.body_pose("plate").unwrap().translation.vector;
+    let at = |x: f64, y: f64, z: f64| Isometry3::from(Translation3::new(x, y, z));
+    // The chicken (3 cm high) resting on the plate's top (1 cm above the table at 0.75 m).
+    world.set_body_pose("chicken", &at(plate.x + 0.02, plate.y, 0.775)).unwrap();
+    assert!(task.success(&world, &state), "the named item on the plate, the other on the grill");
+    // Held 5 cm above the plate: not resting on it.
+    world.set_body_pose("chicken", &at(plate.x, plate.y, 0.825)).unwrap();
+    assert!(!task.success(&world, &state));
+    // On the table beside the plate.
+    world.set_body_pose("chicken", &at(plate.x, plate.y + 0.12, 0.765)).unwrap();
+    assert!(!task.success(&world, &state));
+    // On the plate, but the steak came off the grill too.
+    world.set_body_pose("chicken", &at(plate.x, plate.y, 0.775)).unwrap();
+    world.set_body_pose("steak", &at(plate.x + 0.3, plate.y, 0.76)).unwrap();
+    assert!(!task.success(&world, &state));
+    // The other item taken off instead.
+    let wrong = task.reset(&mut world, 1, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    let plate = world.body_pose("plate").unwrap().translation.vector;
+    world.set_body_pose("chicken", &at(plate.x, plate.y, 0.775)).unwrap();
+    assert!(!task.success(&world, &wrong), "told to take the steak, the chicken is on the plate");
 }
 
 #[test]

@@ -21,9 +21,38 @@ pub enum BenchCommand {
     Heldout(super::bench_policy::HeldOutArgs),
     /// Closed-loop success rate of a trained policy on held-out seeds of tasks.
     Success(super::bench_policy::SuccessBenchArgs),
+    /// Expert success, keyframes per episode and episodes per minute (no cameras) of tasks over
+    /// seeded episodes.
+    Experts(ExpertsBenchArgs),
     /// Wall clock of one collection run whole, then split into shards running side by side on
     /// this machine and merged (checks that the merge equals the whole run).
     Shards(ShardsBenchArgs),
+}
+
+#[derive(Debug, Args)]
+pub struct ExpertsBenchArgs {
+    /// Tasks, comma-separated [default: every task].
+    #[arg(long, value_delimiter = ',')]
+    tasks: Vec<String>,
+    /// Episodes per task: seeds from --seed, variation = seed modulo the task's variations.
+    #[arg(long, default_value_t = 100)]
+    episodes: usize,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long)]
+    json: bool,
+}
+
+#[derive(Serialize)]
+struct ExpertReport {
+    task: String,
+    episodes: usize,
+    successes: usize,
+    success_ci95: [f64; 2],
+    keyframes_mean: f64,
+    episodes_per_minute: f64,
+    /// Seeds the expert failed.
+    failed_seeds: Vec<u64>,
 }
 
 #[derive(Debug, Args)]
@@ -151,6 +180,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Policy(args) => super::bench_policy::bench_cmd(args),
         BenchCommand::Heldout(args) => super::bench_policy::heldout_cmd(args),
         BenchCommand::Success(args) => super::bench_policy::success_cmd(args),
+        BenchCommand::Experts(args) => experts(args),
         BenchCommand::Shards(args) => shards(args),
     }
 }
@@ -374,5 +404,62 @@ fn shards(args: ShardsBenchArgs) -> anyhow::Result<()> {
         report.speedup,
         if report.merged_equals_unsharded { "equals" } else { "DIFFERS from" }
     );
+    Ok(())
+}
+
+fn experts(args: ExpertsBenchArgs) -> anyhow::Result<()> {
+    use flowram::rollout::episode::{Actor, run_episode};
+    anyhow::ensure!(args.episodes > 0, "--episodes must be at least 1");
+    let task_list = if args.tasks.is_empty() {
+        flowram::tasks::all()
+    } else {
+        args.tasks.iter().map(|t| flowram::tasks::by_name(t)).collect::<Result<Vec<_>, _>>()?
+    };
+    let mut reports = Vec::with_capacity(task_list.len());
+    for task in &task_list {
+        let mut world = flowram::tasks::load_world(task.as_ref())?;
+        let mut bar = super::progress::TaskBar::new("episodes");
+        flowram::rollout::evaluation::EvaluationProgress::started(&mut bar, task.name(), args.episodes);
+        let start = Instant::now();
+        let (mut successes, mut keyframes, mut failed_seeds) = (0, 0, Vec::new());
+        for i in 0..args.episodes {
+            let seed = args.seed + i as u64;
+            let variation = seed as usize % task.variation_count();
+            let result = run_episode(task.as_ref(), &mut world, variation, seed, Actor::Expert, None)?;
+            keyframes += result.keyframes;
+            if result.success {
+                successes += 1;
+            } else {
+                failed_seeds.push(seed);
+            }
+            flowram::rollout::evaluation::EvaluationProgress::advanced(&mut bar, i + 1);
+        }
+        bar.finish();
+        reports.push(ExpertReport {
+            task: task.name().into(),
+            episodes: args.episodes,
+            successes,
+            success_ci95: flowram::stats::wilson_interval(successes, args.episodes),
+            keyframes_mean: keyframes as f64 / args.episodes as f64,
+            episodes_per_minute: args.episodes as f64 / start.elapsed().as_secs_f64() * 60.0,
+            failed_seeds,
+        });
+    }
+    if args.json {
+        return super::print_json(&reports);
+    }
+    for r in &reports {
+        println!(
+            "{}: expert {}/{} (95 % CI {:.0}-{:.0} %), {:.1} keyframes per episode, {:.0} episodes/min without cameras{}",
+            r.task,
+            r.successes,
+            r.episodes,
+            100.0 * r.success_ci95[0],
+            100.0 * r.success_ci95[1],
+            r.keyframes_mean,
+            r.episodes_per_minute,
+            if r.failed_seeds.is_empty() { String::new() } else { format!("; failed seeds {:?}", r.failed_seeds) }
+        );
+    }
     Ok(())
 }

@@ -8,6 +8,7 @@ pub mod close_jar;
 pub mod colors;
 pub mod grasp;
 pub mod layout;
+pub mod meat_off_grill;
 pub mod open_drawer;
 pub mod push_buttons;
 pub mod slide_block;
@@ -68,6 +69,7 @@ pub fn all() -> Vec<Box<dyn Task>> {
         Box::new(slide_block::SlideBlock),
         Box::new(close_jar::CloseJar),
         Box::new(stack_blocks::StackBlocks),
+        Box::new(meat_off_grill::MeatOffGrill),
     ]
 }
 

@@ -53,6 +53,9 @@ fn instructions_follow_the_templates() {
     let grill = tasks::by_name("meat_off_grill").unwrap();
     assert_eq!(grill.variation_count(), 2);
     assert!((0..2).all(|v| matches_template(&grill.instruction(v), "take the _ off the grill", &["chicken", "steak"])));
+    let tap = tasks::by_name("turn_tap").unwrap();
+    assert_eq!(tap.variation_count(), 2);
+    assert!((0..2).all(|v| matches_template(&tap.instruction(v), "turn _ tap", &["left", "right"])));
     let err = tasks::by_name("juggle").err().unwrap().to_string();
     assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
 }
@@ -145,6 +148,29 @@ fn meat_off_grill_success_rejects_near_misses() {
     let plate = world.body_pose("plate").unwrap().translation.vector;
     world.set_body_pose("chicken", &at(plate.x, plate.y, 0.775)).unwrap();
     assert!(!task.success(&world, &wrong), "told to take the steak, the chicken is on the plate");
+}
+
+#[test]
+fn turn_tap_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("turn_tap").unwrap();
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn turn_tap_success_needs_the_named_handle_turned_past_85_degrees() {
+    use rand::SeedableRng;
+    let task = tasks::by_name("turn_tap").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    world.reset_to("home").unwrap();
+    let state = task.reset(&mut world, 1, &mut rand::rngs::StdRng::seed_from_u64(5)).unwrap();
+    assert_eq!(state.targets, ["right"]);
+    for (left, right, expected) in [(0.0, 30.0, false), (0.0, 80.0, false), (100.0, 0.0, false), (0.0, 95.0, true)] {
+        world.set_joint_position("left_tap_hinge", f64::to_radians(left)).unwrap();
+        world.set_joint_position("right_tap_hinge", f64::to_radians(right)).unwrap();
+        assert_eq!(task.success(&world, &state), expected, "left {left} deg, right {right} deg");
+    }
 }
 
 #[test]

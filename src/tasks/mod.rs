@@ -13,6 +13,7 @@ pub mod open_drawer;
 pub mod push_buttons;
 pub mod slide_block;
 pub mod stack_blocks;
+pub mod turn_tap;
 
 use std::path::PathBuf;
 
@@ -70,6 +71,7 @@ pub fn all() -> Vec<Box<dyn Task>> {
         Box::new(close_jar::CloseJar),
         Box::new(stack_blocks::StackBlocks),
         Box::new(meat_off_grill::MeatOffGrill),
+        Box::new(turn_tap::TurnTap),
     ]
 }
 

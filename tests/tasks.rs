@@ -56,6 +56,13 @@ fn instructions_follow_the_templates() {
     let tap = tasks::by_name("turn_tap").unwrap();
     assert_eq!(tap.variation_count(), 2);
     assert!((0..2).all(|v| matches_template(&tap.instruction(v), "turn _ tap", &["left", "right"])));
+    let put = tasks::by_name("put_item_in_drawer").unwrap();
+    assert_eq!(put.variation_count(), 3);
+    assert!((0..3).all(|v| matches_template(
+        &put.instruction(v),
+        "put the item in the _ drawer",
+        &["left", "middle", "right"]
+    )));
     let err = tasks::by_name("juggle").err().unwrap().to_string();
     assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
 }
@@ -171,6 +178,46 @@ fn turn_tap_success_needs_the_named_handle_turned_past_85_degrees() {
         world.set_joint_position("right_tap_hinge", f64::to_radians(right)).unwrap();
         assert_eq!(task.success(&world, &state), expected, "left {left} deg, right {right} deg");
     }
+}
+
+#[test]
+fn put_item_in_drawer_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("put_item_in_drawer").unwrap();
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn put_item_in_drawer_success_needs_the_item_inside_the_named_drawer() {
+    use nalgebra::{Isometry3, Point3, Translation3};
+    use rand::SeedableRng;
+    let task = tasks::by_name("put_item_in_drawer").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    world.reset_to("home").unwrap();
+    let state = task.reset(&mut world, 0, &mut rand::rngs::StdRng::seed_from_u64(2)).unwrap();
+    assert_eq!(state.targets, ["left"]);
+    assert!(!task.success(&world, &state), "the item starts on the cabinet");
+    for drawer in ["left", "middle"] {
+        world.set_joint_position(&format!("{drawer}_drawer_slide"), 0.15).unwrap();
+    }
+    let place = |world: &mut flowram::sim::World, drawer: &str, local: [f64; 3]| {
+        let frame = world.body_pose(&format!("{drawer}_drawer")).unwrap();
+        let p = frame * Point3::from(local);
+        world.set_body_pose("item", &Isometry3::from(Translation3::from(p.coords))).unwrap();
+    };
+    // On the floor of the open left drawer (floor top at z = -0.051 in the drawer's frame).
+    place(&mut world, "left", [-0.09, 0.0, -0.031]);
+    assert!(task.success(&world, &state));
+    // In the middle drawer instead.
+    place(&mut world, "middle", [-0.09, 0.0, -0.031]);
+    assert!(!task.success(&world, &state));
+    // On the cabinet's top right above the left drawer, not inside it.
+    place(&mut world, "left", [0.05, 0.0, 0.095]);
+    assert!(!task.success(&world, &state));
+    // In front of the drawer, on the table.
+    place(&mut world, "left", [-0.25, 0.0, -0.105]);
+    assert!(!task.success(&world, &state));
 }
 
 #[test]

@@ -11,6 +11,7 @@ pub mod layout;
 pub mod meat_off_grill;
 pub mod open_drawer;
 pub mod push_buttons;
+pub mod put_item_in_drawer;
 pub mod slide_block;
 pub mod stack_blocks;
 pub mod turn_tap;
@@ -56,9 +57,10 @@ pub trait Task: Send + Sync {
     /// The expert's keyframes in the world frame, from the objects as they are now.
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError>;
 
-    /// The MJCF file with the task's objects.
-    fn model_file(&self) -> PathBuf {
-        crate::deps::models_dir().join("tasks").join(format!("{}.xml", self.name()))
+    /// The MJCF files with the task's objects (default: `models/tasks/<name>.xml`; a task built
+    /// on another's fixtures lists that task's file too).
+    fn model_files(&self) -> Vec<PathBuf> {
+        vec![model_file(self.name())]
     }
 }
 
@@ -72,6 +74,7 @@ pub fn all() -> Vec<Box<dyn Task>> {
         Box::new(stack_blocks::StackBlocks),
         Box::new(meat_off_grill::MeatOffGrill),
         Box::new(turn_tap::TurnTap),
+        Box::new(put_item_in_drawer::PutItemInDrawer),
     ]
 }
 
@@ -82,8 +85,13 @@ pub fn by_name(name: &str) -> Result<Box<dyn Task>, TaskError> {
     })
 }
 
+/// `models/tasks/<name>.xml`.
+pub fn model_file(name: &str) -> PathBuf {
+    crate::deps::models_dir().join("tasks").join(format!("{name}.xml"))
+}
+
 /// The world of a task: the default scene with the task's objects.
 pub fn load_world(task: &dyn Task) -> Result<World, TaskError> {
     let scene = crate::sim::scene::resolve_scene("default")?;
-    Ok(World::load_with(&scene, &[task.model_file()], &crate::deps::Deps::locate())?)
+    Ok(World::load_with(&scene, &task.model_files(), &crate::deps::Deps::locate())?)
 }

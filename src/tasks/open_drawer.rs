@@ -18,10 +18,10 @@ use super::{Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
-const DRAWERS: [&str; 3] = ["left", "middle", "right"];
+pub(super) const DRAWERS: [&str; 3] = ["left", "middle", "right"];
 /// The drawer counts as open beyond this (m).
 const OPEN_THRESHOLD: f64 = 0.10;
-const PULL: f64 = 0.15;
+pub(super) const PULL: f64 = 0.15;
 /// The handle bar's centre in the drawer's frame (m): see `models/tasks/open_drawer.xml`.
 const HANDLE: [f64; 3] = [-0.248, 0.0, 0.042];
 /// The TCP closes 1 cm in front of the bar (toward the robot), so the open rear finger clears
@@ -46,11 +46,7 @@ impl Task for OpenDrawer {
     }
 
     fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError> {
-        let pose = Isometry3::from_parts(
-            Translation3::new(rng.random_range(0.70..0.74), rng.random_range(-0.06..0.06), 0.75),
-            UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-6f64..6.0).to_radians()),
-        );
-        world.set_fixed_body_pose("cabinet", &pose)?;
+        place_cabinet(world, rng)?;
         Ok(TaskState { targets: vec![DRAWERS[variation].to_string()], events: Vec::new() })
     }
 
@@ -59,19 +55,34 @@ impl Task for OpenDrawer {
     }
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
-        let drawer = &state.targets[0];
-        let cabinet = world.body_pose("cabinet")?;
-        let handle = world.body_pose(&format!("{drawer}_drawer"))? * nalgebra::Point3::from(HANDLE);
-        // Toward the cabinet's back; the drawer opens along -inward.
-        let inward = cabinet.rotation * Vector3::x();
-        // From above, the fingers closing along the pull (TCP y = inward): pulling presses the
-        // rear finger against the bar.
-        let grip = top_down(symmetric_yaw(inward.y.atan2(inward.x) + FRAC_PI_2, PI, 0.0));
-        let h = handle.coords - inward * GRASP_OFFSET - Vector3::z() * GRASP_BELOW;
-        Ok(vec![
-            keyframe(h + Vector3::z() * 0.08, grip, true),
-            keyframe(h, grip, false),
-            keyframe(h - inward * PULL, grip, false),
-        ])
+        open_keyframes(world, &state.targets[0])
     }
+}
+
+/// Places the cabinet (the reset of the module docs; also `put_item_in_drawer`'s).
+pub(super) fn place_cabinet(world: &mut World, rng: &mut StdRng) -> Result<(), TaskError> {
+    let pose = Isometry3::from_parts(
+        Translation3::new(rng.random_range(0.70..0.74), rng.random_range(-0.06..0.06), 0.75),
+        UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-6f64..6.0).to_radians()),
+    );
+    world.set_fixed_body_pose("cabinet", &pose)?;
+    Ok(())
+}
+
+/// The expert's keyframes opening `drawer` (left, middle, right): above the handle bar, down
+/// and close, pull. The hand ends holding the bar.
+pub(super) fn open_keyframes(world: &World, drawer: &str) -> Result<Vec<Keyframe>, TaskError> {
+    let cabinet = world.body_pose("cabinet")?;
+    let handle = world.body_pose(&format!("{drawer}_drawer"))? * nalgebra::Point3::from(HANDLE);
+    // Toward the cabinet's back; the drawer opens along -inward.
+    let inward = cabinet.rotation * Vector3::x();
+    // From above, the fingers closing along the pull (TCP y = inward): pulling presses the
+    // rear finger against the bar.
+    let grip = top_down(symmetric_yaw(inward.y.atan2(inward.x) + FRAC_PI_2, PI, 0.0));
+    let h = handle.coords - inward * GRASP_OFFSET - Vector3::z() * GRASP_BELOW;
+    Ok(vec![
+        keyframe(h + Vector3::z() * 0.08, grip, true),
+        keyframe(h, grip, false),
+        keyframe(h - inward * PULL, grip, false),
+    ])
 }

@@ -63,6 +63,13 @@ fn instructions_follow_the_templates() {
         "put the item in the _ drawer",
         &["left", "middle", "right"]
     )));
+    let drag = tasks::by_name("drag_stick").unwrap();
+    assert_eq!(drag.variation_count(), 20);
+    assert!((0..20).all(|v| matches_template(
+        &drag.instruction(v),
+        "use the stick to drag the cube onto the _ target",
+        &colors
+    )));
     let err = tasks::by_name("juggle").err().unwrap().to_string();
     assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
 }
@@ -218,6 +225,39 @@ fn put_item_in_drawer_success_needs_the_item_inside_the_named_drawer() {
     // In front of the drawer, on the table.
     place(&mut world, "left", [-0.25, 0.0, -0.105]);
     assert!(!task.success(&world, &state));
+}
+
+#[test]
+fn drag_stick_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("drag_stick").unwrap();
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn drag_stick_success_needs_the_cube_on_the_named_target() {
+    use nalgebra::{Isometry3, Translation3};
+    use rand::SeedableRng;
+    let task = tasks::by_name("drag_stick").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    world.reset_to("home").unwrap();
+    let state = task.reset(&mut world, 4, &mut rand::rngs::StdRng::seed_from_u64(8)).unwrap();
+    assert!(!task.success(&world, &state), "the cube starts off the targets");
+    let named = world.body_pose(&state.targets[0]).unwrap().translation.vector;
+    let other = if state.targets[0] == "target_0" { "target_1" } else { "target_0" };
+    let other = world.body_pose(other).unwrap().translation.vector;
+    let put = |world: &mut flowram::sim::World, x: f64, y: f64, z: f64| {
+        world.set_body_pose("cube", &Isometry3::from(Translation3::new(x, y, z))).unwrap();
+    };
+    put(&mut world, named.x + 0.03, named.y - 0.02, 0.77);
+    assert!(task.success(&world, &state));
+    put(&mut world, other.x, other.y, 0.77);
+    assert!(!task.success(&world, &state), "on the other colour's target");
+    put(&mut world, (named.x + other.x) / 2.0, named.y, 0.77);
+    assert!(!task.success(&world, &state), "between the targets");
+    put(&mut world, named.x, named.y, 0.85);
+    assert!(!task.success(&world, &state), "above the target, not on the table");
 }
 
 #[test]

@@ -6,6 +6,7 @@
 //! closed loop that runs them (with the expert or a learned policy) is the `rollout` module.
 pub mod close_jar;
 pub mod colors;
+pub mod drag_stick;
 pub mod grasp;
 pub mod layout;
 pub mod meat_off_grill;
@@ -75,6 +76,7 @@ pub fn all() -> Vec<Box<dyn Task>> {
         Box::new(meat_off_grill::MeatOffGrill),
         Box::new(turn_tap::TurnTap),
         Box::new(put_item_in_drawer::PutItemInDrawer),
+        Box::new(drag_stick::DragStick),
     ]
 }
 

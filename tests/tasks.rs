@@ -70,6 +70,9 @@ fn instructions_follow_the_templates() {
         "use the stick to drag the cube onto the _ target",
         &colors
     )));
+    let sweep = tasks::by_name("sweep_to_dustpan").unwrap();
+    assert_eq!(sweep.variation_count(), 2);
+    assert!((0..2).all(|v| matches_template(&sweep.instruction(v), "sweep dirt to the _ dustpan", &["short", "tall"])));
     let err = tasks::by_name("juggle").err().unwrap().to_string();
     assert!(err.contains("open_drawer") && err.contains("push_buttons"), "{err}");
 }
@@ -258,6 +261,43 @@ fn drag_stick_success_needs_the_cube_on_the_named_target() {
     assert!(!task.success(&world, &state), "between the targets");
     put(&mut world, named.x, named.y, 0.85);
     assert!(!task.success(&world, &state), "above the target, not on the table");
+}
+
+#[test]
+fn sweep_to_dustpan_expert_succeeds_and_idling_does_not() {
+    let task = tasks::by_name("sweep_to_dustpan").unwrap();
+    let expert = success_rate(task.as_ref(), || Actor::Expert, 10);
+    assert!(expert >= 9, "expert solved {expert}/10");
+    assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
+}
+
+#[test]
+fn sweep_to_dustpan_success_needs_all_the_dirt_in_the_named_pan() {
+    use nalgebra::{Isometry3, Point3, Translation3};
+    use rand::SeedableRng;
+    let task = tasks::by_name("sweep_to_dustpan").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    world.reset_to("home").unwrap();
+    let state = task.reset(&mut world, 1, &mut rand::rngs::StdRng::seed_from_u64(6)).unwrap();
+    assert_eq!(state.targets[0], "tall_dustpan");
+    assert!(!task.success(&world, &state), "the dirt starts between the pans");
+    let fill = |world: &mut flowram::sim::World, pan: &str, pieces: std::ops::Range<usize>| {
+        let frame = world.body_pose(pan).unwrap();
+        for i in pieces {
+            let p = frame * Point3::new(-0.04 + 0.02 * i as f64, 0.0, 0.006);
+            world.set_body_pose(&format!("dirt_{i}"), &Isometry3::from(Translation3::from(p.coords))).unwrap();
+        }
+    };
+    fill(&mut world, "short_dustpan", 0..5);
+    assert!(!task.success(&world, &state), "all in the other pan");
+    fill(&mut world, "tall_dustpan", 0..4);
+    assert!(!task.success(&world, &state), "one piece still in the short pan");
+    fill(&mut world, "tall_dustpan", 4..5);
+    assert!(task.success(&world, &state));
+    let frame = world.body_pose("tall_dustpan").unwrap();
+    let outside = frame * Point3::new(0.0, -0.07, 0.006);
+    world.set_body_pose("dirt_2", &Isometry3::from(Translation3::from(outside.coords))).unwrap();
+    assert!(!task.success(&world, &state), "one piece just in front of the pan");
 }
 
 #[test]

@@ -1,5 +1,5 @@
 //! drag_stick: "use the stick to drag the cube onto the _ target" (20 colours; Table A:
-//! colour(20)). Tool use: the cube is dragged with a stick held at one end, as a rake.
+//! colour(20)). Tool use: the cube is dragged with a stick held near one end, as a rake.
 //!
 //! Scene: `models/tasks/drag_stick.xml`, a 30 cm stick and a 4 cm cube on the table and two
 //! 10 cm target squares. Reset: the cube at x in [0.60, 0.64] m, y in [-0.06, 0.06] m (world);

@@ -15,6 +15,7 @@ pub mod push_buttons;
 pub mod put_item_in_drawer;
 pub mod slide_block;
 pub mod stack_blocks;
+pub mod sweep_to_dustpan;
 pub mod turn_tap;
 
 use std::path::PathBuf;
@@ -77,6 +78,7 @@ pub fn all() -> Vec<Box<dyn Task>> {
         Box::new(turn_tap::TurnTap),
         Box::new(put_item_in_drawer::PutItemInDrawer),
         Box::new(drag_stick::DragStick),
+        Box::new(sweep_to_dustpan::SweepToDustpan),
     ]
 }
 

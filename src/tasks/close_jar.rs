@@ -12,7 +12,7 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::grasp::{pick_and_place, top_down};
+use super::grasp::{clearest_yaw, pick_and_place, top_down};
 use super::layout::scatter;
 use super::{Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
@@ -65,7 +65,14 @@ impl Task for CloseJar {
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let lid = world.body_pose("lid")?.translation.vector;
         let jar = world.body_pose(&state.targets[0])?.translation.vector;
-        let down = top_down(0.0);
+        // The lid is round, so any yaw grasps it; the hand's palm (20 cm along the fingers'
+        // closing direction, 4.5 cm above the TCP) must not come down on a jar's top, which is
+        // higher than the palm when the fingers reach the lid: the yaw whose palm line passes
+        // farthest from both jars (in 5-degree steps, smaller turns first).
+        let jars = [world.body_pose("jar_0")?.translation.vector, world.body_pose("jar_1")?.translation.vector];
+        let turns = (0..36).map(|k: i32| f64::from(if k % 2 == 0 { k / 2 } else { -(k + 1) / 2 }) * 5f64.to_radians());
+        let yaw = clearest_yaw(&lid, turns, &jars);
+        let down = top_down(yaw);
         // The fingers close across the lid 5 mm above its centre; it is set down 3 mm above the
         // rim and dropped.
         let grasp = lid + Vector3::new(0.0, 0.0, 0.005);

@@ -51,3 +51,34 @@ pub fn pick_and_place(
         keyframe(place + up, place_rotation, true),
     ]
 }
+
+/// Half the hand's palm length along the fingers' closing direction (the TCP's y), m. The palm
+/// is about 4.5 cm above the TCP, so when the fingers reach an object on the table it is lower
+/// than the tops of taller things nearby (jars, a stack) that lie along that line.
+pub const PALM_HALF: f64 = 0.10;
+
+/// How far (m, in the horizontal plane) the palm's line of a top-down hand at `at` turned by
+/// `yaw` passes from the nearest of `obstacles` (their centres).
+pub fn palm_clearance(at: &Vector3<f64>, yaw: f64, obstacles: &[Vector3<f64>]) -> f64 {
+    let along = Vector3::new(-yaw.sin(), yaw.cos(), 0.0); // the TCP's y of `top_down(yaw)`, up to sign
+    obstacles
+        .iter()
+        .map(|o| {
+            let d = Vector3::new(o.x - at.x, o.y - at.y, 0.0);
+            let t = d.dot(&along).clamp(-PALM_HALF, PALM_HALF);
+            (d - along * t).norm()
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// Of `candidates` (yaws, in order of preference), the one whose palm passes farthest from
+/// `obstacles` ([`palm_clearance`]); the earlier one on a tie (within 1 mm).
+pub fn clearest_yaw(at: &Vector3<f64>, candidates: impl IntoIterator<Item = f64>, obstacles: &[Vector3<f64>]) -> f64 {
+    candidates
+        .into_iter()
+        .fold((0.0, f64::NEG_INFINITY), |(best, clearance), yaw| {
+            let here = palm_clearance(at, yaw, obstacles);
+            if here > clearance + 1e-3 { (yaw, here) } else { (best, clearance) }
+        })
+        .0
+}

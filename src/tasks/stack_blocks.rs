@@ -14,7 +14,7 @@ use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::grasp::{pick_and_place, symmetric_yaw, top_down};
+use super::grasp::{clearest_yaw, pick_and_place, symmetric_yaw, top_down};
 use super::layout::{apart, scatter};
 use super::{Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
@@ -101,7 +101,20 @@ impl Task for StackBlocks {
         let mut keyframes = Vec::new();
         for (level, name) in state.targets.iter().enumerate() {
             let block = world.body_pose(name)?;
-            let yaw = symmetric_yaw(yaw_of(&block), std::f64::consts::FRAC_PI_2, 0.0);
+            // Either pair of faces can be grasped: the one whose palm line passes farther from
+            // the stack and the other blocks (the palm is lower than a two-block stack's top
+            // when the fingers reach a block on the table).
+            let obstacles: Vec<Vector3<f64>> = std::iter::once(Ok(platform))
+                .chain(
+                    (0..BLOCKS)
+                        .map(|i| format!("block_{i}"))
+                        .filter(|n| n != name)
+                        .map(|n| world.body_pose(&n).map(|p| p.translation.vector)),
+                )
+                .collect::<Result<_, _>>()?;
+            let first = symmetric_yaw(yaw_of(&block), std::f64::consts::FRAC_PI_2, 0.0);
+            let second = symmetric_yaw(first + std::f64::consts::FRAC_PI_2, std::f64::consts::PI, 0.0);
+            let yaw = clearest_yaw(&block.translation.vector, [first, second], &obstacles);
             let pick = block.translation.vector + Vector3::new(0.0, 0.0, 0.005);
             let place = Vector3::new(
                 platform.x,

@@ -197,3 +197,22 @@ fn three_evaluation_shards_merge_into_the_unsharded_table_and_resume() {
     failed_with(success(None, Some((0, 3)), 2).output().unwrap(), &["--out"]);
     failed_with(success(Some(&files[0]), Some((0, 3)), 3).output().unwrap(), &["already holds"]);
 }
+
+#[test]
+fn bad_shard_and_attempt_arguments_fail_clearly_and_write_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("data");
+    let run = |extra: &[&str]| {
+        let mut c = collect("slide_block", 3, &out, None);
+        c.args(extra);
+        c.output().unwrap()
+    };
+    failed_with(run(&["--shard-index", "3", "--shard-count", "3"]), &["out of range", "--shard-index"]);
+    failed_with(run(&["--shard-count", "3"]), &["--shard-count needs --shard-index"]);
+    failed_with(run(&["--shard-index", "0"]), &["needs --shard-count"]);
+    failed_with(run(&["--attempts-per-episode", "0"]), &["attempts per episode must be at least 1"]);
+    let k8s = collect("slide_block", 3, &out, None).env("JOB_COMPLETION_INDEX", "1").output().unwrap();
+    failed_with(k8s, &["JOB_COMPLETION_INDEX", "--shard-count"]);
+    assert!(!out.exists(), "nothing is written when the arguments are refused");
+    failed_with(common::flowram().args(["merge", "/nonexistent/shard.json"]).output().unwrap(), &["does not exist"]);
+}

@@ -29,6 +29,11 @@ const ITEM_OFFSET: f64 = 0.07;
 
 pub struct MeatOffGrill;
 
+/// Half the height of the item `name` (one of [`ITEMS`]; the task's own names, never input).
+fn half_height(name: &str) -> f64 {
+    ITEMS.iter().find(|(n, _)| *n == name).map_or(0.0, |(_, h)| *h)
+}
+
 impl Task for MeatOffGrill {
     fn name(&self) -> &'static str {
         "meat_off_grill"
@@ -59,7 +64,6 @@ impl Task for MeatOffGrill {
     }
 
     fn success(&self, world: &World, state: &TaskState) -> bool {
-        let half = |name: &str| ITEMS.iter().find(|(n, _)| *n == name).map_or(0.0, |(_, h)| *h);
         let (Ok(item), Ok(other), Ok(plate), Ok(grill)) = (
             world.body_pose(&state.targets[0]),
             world.body_pose(&state.targets[1]),
@@ -69,18 +73,18 @@ impl Task for MeatOffGrill {
             return false;
         };
         let on_plate = (item.translation.vector - plate.translation.vector).xy().norm() < PLATE_RADIUS
-            && (item.translation.z - half(&state.targets[0]) - PLATE_TOP).abs() < 0.01;
+            && (item.translation.z - half_height(&state.targets[0]) - PLATE_TOP).abs() < 0.01;
         let d = other.translation.vector - grill.translation.vector;
         let still_on_grill = d.x.abs() < GRILL_HALF[0]
             && d.y.abs() < GRILL_HALF[1]
-            && (other.translation.z - half(&state.targets[1]) - GRILL_TOP).abs() < 0.01;
+            && (other.translation.z - half_height(&state.targets[1]) - GRILL_TOP).abs() < 0.01;
         on_plate && still_on_grill
     }
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let item = world.body_pose(&state.targets[0])?;
         let plate = world.body_pose("plate")?.translation.vector;
-        let half = ITEMS.iter().find(|(n, _)| *n == state.targets[0]).map_or(0.0, |(_, h)| *h);
+        let half = half_height(&state.targets[0]);
         // The fingers close along the TCP's y: across the item's narrow (local y) side.
         let (_, _, item_yaw) = item.rotation.euler_angles();
         let grasp_rotation = top_down(symmetric_yaw(item_yaw, std::f64::consts::PI, 0.0));

@@ -79,8 +79,7 @@ impl Task for SweepToDustpan {
             UnitQuaternion::from_axis_angle(&Vector3::z_axis(), rng.random_range(-10f64..10.0).to_radians()),
         );
         world.set_body_pose("brush", &brush)?;
-        let side = if variation == 0 { short_side } else { -short_side };
-        Ok(TaskState { targets: vec![format!("{}_dustpan", SIZES[variation]), side.to_string()], events: Vec::new() })
+        Ok(TaskState { targets: vec![format!("{}_dustpan", SIZES[variation])], events: Vec::new() })
     }
 
     fn success(&self, world: &World, state: &TaskState) -> bool {
@@ -94,9 +93,11 @@ impl Task for SweepToDustpan {
     }
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
-        let side: f64 = state.targets[1].parse().unwrap_or(1.0);
         let brush = world.body_pose("brush")?;
-        let pan = world.body_pose(&state.targets[0])?.translation.vector;
+        let pan_pose = world.body_pose(&state.targets[0])?;
+        let pan = pan_pose.translation.vector;
+        // The pan's +y points from its open side to its back wall: the sweep's direction along y.
+        let side = (pan_pose.rotation * Vector3::y()).y.signum();
         let (_, _, brush_yaw) = brush.rotation.euler_angles();
         // Fingers across the handle: the handle (head toward +x) along the TCP's x.
         let hold = (brush * Point3::new(HOLD_X, 0.0, 0.0)).coords + Vector3::new(0.0, 0.0, 0.005);

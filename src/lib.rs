@@ -7,6 +7,7 @@ pub mod files;
 pub mod policy;
 pub mod robot;
 pub mod rollout;
+pub mod runtime;
 pub mod sim;
 pub mod stats;
 pub mod tasks;

@@ -43,6 +43,14 @@ pub fn mcnemar_exact_p(only_a: usize, only_b: usize) -> f64 {
     (2.0 * tail).min(1.0)
 }
 
+/// The `p` quantile (0..=1) of ascending-sorted `sorted`, nearest rank (0 for none).
+pub fn percentile_sorted(sorted: &[f64], p: f64) -> f64 {
+    if sorted.is_empty() {
+        return 0.0;
+    }
+    sorted[((sorted.len() - 1) as f64 * p.clamp(0.0, 1.0)).round() as usize]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

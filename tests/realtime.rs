@@ -1,38 +1,24 @@
-//! The 1 kHz tick does not allocate: a counting global allocator sees no allocation across a
-//! tracking run's control ticks (controller and simulated robot cycle), after the first tick.
-use std::alloc::{GlobalAlloc, Layout, System};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+//! The 1 kHz tick does not allocate or wait: a counting global allocator sees no allocation in
+//! control ticks (lock-step and in the real-time runtime's control thread); a stalled policy
+//! never delays a tick and the arm holds; garbage keyframes are rejected and the arm holds; the
+//! simulated-latency mode reproduces bit for bit and applies plans exactly at their due tick.
+use std::time::Duration;
 
 use flowram::control::backend::{Cycle, RobotBackend};
+use flowram::control::keyframe::Keyframe;
 use flowram::control::osc_config::OscConfig;
-use flowram::rollout::stack::build_runner;
+use flowram::rollout::stack::{build_runner, realtime_stack};
+use flowram::runtime::alloc_count::{CountingAllocator, TickScope, tick_allocations};
+use flowram::runtime::control::{ControlSettings, Pacing, StopReason};
+use flowram::runtime::messages::{Event, Rejection, Request};
+use flowram::runtime::planner::WorkspaceBox;
+use flowram::runtime::session::{KeyframeSource, SessionOutcome, SessionSettings, run_session};
 use flowram::sim::World;
-use nalgebra::{Translation3, UnitQuaternion, Vector3};
-
-struct Counting;
-static COUNTING: AtomicBool = AtomicBool::new(false);
-static ALLOCATIONS: AtomicU64 = AtomicU64::new(0);
-
-unsafe impl GlobalAlloc for Counting {
-    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.alloc(layout) }
-    }
-    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
-        unsafe { System.dealloc(ptr, layout) }
-    }
-    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
-        if COUNTING.load(Ordering::Relaxed) {
-            ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
-        }
-        unsafe { System.realloc(ptr, layout, new_size) }
-    }
-}
+use flowram::sim::backend::DetachedWorld;
+use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector3};
 
 #[global_allocator]
-static GLOBAL: Counting = Counting;
+static GLOBAL: CountingAllocator = CountingAllocator;
 
 #[test]
 fn control_ticks_do_not_allocate() {
@@ -42,30 +28,160 @@ fn control_ticks_do_not_allocate() {
     let target = Translation3::new(0.1, -0.1, -0.05) * home * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3);
     let goal = runner.ik.solve(runner.controller.kinematics_mut(), &target, &world.read_state().q).unwrap().q;
     runner.controller.set_goal(&goal);
+    let before = tick_allocations();
     let mut ticks = 0u32;
     world
         .control(|state| {
-            let command = runner.controller.tick(state);
             ticks += 1;
-            if ticks == 1 {
-                COUNTING.store(true, Ordering::SeqCst); // from the second tick on
-            }
-            if ticks == 2000 {
-                COUNTING.store(false, Ordering::SeqCst);
-                return Cycle::Finish(command);
-            }
             if ticks == 700 {
-                runner.controller.set_goal(&home_goal(&goal)); // a re-plan mid-motion, too
+                let mut q = goal;
+                q[0] -= 0.2;
+                runner.controller.set_goal(&q); // a re-plan mid-motion, too
             }
-            Cycle::Continue(command)
+            // from the second tick on (the first sizes the solver's workspaces)
+            let _scope = (ticks > 1).then(TickScope::enter);
+            let command = runner.controller.tick(state);
+            if ticks == 2000 { Cycle::Finish(command) } else { Cycle::Continue(command) }
         })
         .unwrap();
     assert!(runner.controller.osc().stats().ticks >= 2000);
-    assert_eq!(ALLOCATIONS.load(Ordering::SeqCst), 0, "heap allocations inside control ticks");
+    assert_eq!(tick_allocations() - before, 0, "heap allocations inside control ticks");
 }
 
-fn home_goal(goal: &flowram::robot::JointVector) -> flowram::robot::JointVector {
-    let mut q = *goal;
-    q[0] -= 0.2;
-    q
+/// Keyframes from a list, in order; each answer after `delay` of wall-clock time.
+struct Script {
+    keyframes: Vec<Keyframe>,
+    delay: Duration,
+    next: usize,
+}
+
+impl KeyframeSource for Script {
+    fn propose(&mut self, _request: &Request) -> Result<Keyframe, String> {
+        std::thread::sleep(self.delay);
+        let k = self.keyframes.get(self.next).copied().ok_or("script exhausted")?;
+        self.next += 1;
+        Ok(k)
+    }
+}
+
+fn home() -> (World, Isometry3<f64>) {
+    let world = World::load_named("default").unwrap();
+    let tcp = world.arm_state().tcp_in_base;
+    (world, tcp)
+}
+
+fn settings(pacing: Pacing, max_ticks: u64, keyframes: Option<u64>) -> ControlSettings {
+    ControlSettings {
+        pacing,
+        max_ticks,
+        keyframes,
+        watchdog_ticks: 1000,
+        max_rejections_in_a_row: 4,
+        gripper_timeout: 2.0,
+        stall_timeout_s: 5.0,
+    }
+}
+
+fn run(world: World, settings: ControlSettings, source: &mut dyn KeyframeSource) -> SessionOutcome<DetachedWorld> {
+    let (control, planner) =
+        realtime_stack(world, OscConfig::default_profile().unwrap(), settings, WorkspaceBox::TABLE).unwrap();
+    run_session(control, planner, source, SessionSettings::default()).unwrap()
+}
+
+fn moves(home: &Isometry3<f64>) -> Vec<Keyframe> {
+    let a = Translation3::new(0.08, 0.1, -0.05) * home * UnitQuaternion::from_axis_angle(&Vector3::z_axis(), 0.3);
+    let b = Translation3::new(0.0, -0.1, 0.03) * home;
+    vec![Keyframe::at(&a, true), Keyframe::at(&b, false)]
+}
+
+#[test]
+fn simulated_latency_applies_plans_at_their_due_tick_and_reproduces_bit_for_bit() {
+    let latency = 150;
+    let mut finals = Vec::new();
+    let mut timelines = Vec::new();
+    for delay_ms in [0, 30] {
+        // different wall-clock delays of the policy: the simulated timeline must not change
+        let (world, tcp) = home();
+        let mut source = Script { keyframes: moves(&tcp), delay: Duration::from_millis(delay_ms), next: 0 };
+        let out = run(world, settings(Pacing::SimulatedLatency { ticks: latency }, 20_000, Some(2)), &mut source);
+        assert_eq!(out.summary.stop, StopReason::KeyframesDone, "{:?}", out.events);
+        assert_eq!(out.summary.keyframes_done, 2);
+        assert_eq!(out.summary.monitor.violations, 0);
+        let mut requested = std::collections::HashMap::new();
+        let mut timeline = Vec::new();
+        for e in &out.events {
+            match *e {
+                Event::Requested { request, tick } => {
+                    requested.insert(request, tick);
+                }
+                Event::PlanStarted { request, tick } => {
+                    assert_eq!(tick, requested[&request] + latency, "plan {request} applied off its due tick");
+                    timeline.push(tick);
+                }
+                Event::KeyframeDone { tick, outcome, .. } => {
+                    assert!(outcome.position_error() < 1e-3, "keyframe settled {} m off", outcome.position_error());
+                    timeline.push(tick);
+                }
+                _ => {}
+            }
+        }
+        timelines.push(timeline);
+        let s = out.summary.final_state;
+        finals.push((s.q.map(f64::to_bits), s.dq.map(f64::to_bits), s.gripper_width.to_bits(), out.summary.ticks));
+    }
+    assert_eq!(timelines[0], timelines[1]);
+    assert_eq!(finals[0], finals[1], "the simulated-latency mode is not bit-identical across runs");
+}
+
+#[test]
+fn a_stalled_policy_never_delays_a_tick_and_the_arm_holds() {
+    let (world, tcp) = home();
+    let q0 = world.arm_state().q;
+    // the policy answers after 1.5 s; the watchdog gives up after 1000 ticks (1 s)
+    let mut source = Script { keyframes: moves(&tcp), delay: Duration::from_millis(1500), next: 0 };
+    let out = run(world, settings(Pacing::WallClock, 5000, None), &mut source);
+    let s = &out.summary;
+    assert_eq!(s.stop, StopReason::PolicySilent);
+    assert!(s.ticks > 1000, "the control loop stopped ticking after {} ticks", s.ticks);
+    assert_eq!(s.waited_ticks, 0, "ticks waited on the policy");
+    assert_eq!(s.monitor.violations, 0);
+    assert!(
+        (s.final_state.q - q0).amax() < 1e-3,
+        "the arm drifted {} rad while holding",
+        (s.final_state.q - q0).amax()
+    );
+    assert!(matches!(out.events.last(), Some(Event::WatchdogHold { .. })), "{:?}", out.events);
+}
+
+#[test]
+fn garbage_keyframes_are_rejected_and_the_arm_holds() {
+    let (world, tcp) = home();
+    let q0 = world.arm_state().q;
+    let good = Keyframe::at(&tcp, true);
+    let nan = Keyframe { position: [f64::NAN, 0.0, 0.5], ..good };
+    let skewed = Keyframe { quat_wxyz: [0.9, 0.0, 0.0, 0.0], ..good };
+    let far = Keyframe { position: [2.0, 0.0, 0.4], ..good };
+    let unreachable = Keyframe { position: [0.12, 0.0, 0.0], quat_wxyz: [0.0, 0.0, 0.0, 1.0], ..good };
+    let mut source = Script { keyframes: vec![nan, skewed, far, unreachable], delay: Duration::ZERO, next: 0 };
+    let out = run(world, settings(Pacing::SimulatedLatency { ticks: 20 }, 5000, None), &mut source);
+    assert_eq!(out.summary.stop, StopReason::PolicyGarbage);
+    let why: Vec<Rejection> =
+        out.events.iter().filter_map(|e| if let Event::Rejected { why, .. } = e { Some(*why) } else { None }).collect();
+    assert_eq!(
+        why,
+        [Rejection::NonFinite, Rejection::NotUnitQuaternion, Rejection::OutsideWorkspace, Rejection::Unreachable]
+    );
+    assert_eq!(out.summary.monitor.violations, 0);
+    assert!((out.summary.final_state.q - q0).amax() < 1e-3, "the arm moved on garbage");
+}
+
+#[test]
+fn the_control_thread_does_not_allocate() {
+    let (world, tcp) = home();
+    let mut source = Script { keyframes: moves(&tcp), delay: Duration::ZERO, next: 0 };
+    let before = tick_allocations();
+    let out = run(world, settings(Pacing::SimulatedLatency { ticks: 5 }, 20_000, Some(2)), &mut source);
+    assert_eq!(out.summary.keyframes_done, 2);
+    assert!(out.summary.ticks > 1000);
+    assert_eq!(tick_allocations() - before, 0, "heap allocations inside control ticks");
 }

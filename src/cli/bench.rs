@@ -27,6 +27,9 @@ pub enum BenchCommand {
     /// Wall clock of one collection run whole, then split into shards running side by side on
     /// this machine and merged (checks that the merge equals the whole run).
     Shards(ShardsBenchArgs),
+    /// The real-time runtime: deadline misses, tick compute and wake-up latency percentiles,
+    /// ticks that waited on the policy and allocations in ticks, over a long wall-clock run.
+    Realtime(super::bench_realtime::RealtimeBenchArgs),
 }
 
 #[derive(Debug, Args)]
@@ -182,6 +185,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Success(args) => super::bench_policy::success_cmd(args),
         BenchCommand::Experts(args) => experts(args),
         BenchCommand::Shards(args) => shards(args),
+        BenchCommand::Realtime(args) => super::bench_realtime::realtime(args),
     }
 }
 

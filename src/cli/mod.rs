@@ -1,6 +1,7 @@
 //! Subcommands: parse arguments, call the library, print (text, or one JSON object with --json).
 mod bench;
 mod bench_policy;
+mod bench_realtime;
 mod episodes;
 mod learned;
 mod merge;

@@ -5,6 +5,7 @@
 //! through `robot::Kinematics` and the [`backend::RobotBackend`] trait.
 pub mod backend;
 pub mod controller;
+pub mod execution;
 pub mod gripper;
 pub mod ik;
 pub mod keyframe;
@@ -15,4 +16,4 @@ pub mod pose_error;
 pub mod runner;
 pub mod trajectory;
 pub mod tuning;
-mod waypoints;
+pub mod waypoints;

@@ -68,6 +68,11 @@ impl LimitMonitor {
         }
     }
 
+    /// The limits ticks are checked against.
+    pub fn limits(&self) -> &JointLimits {
+        &self.limits
+    }
+
     /// Checks the state and the command of one tick.
     pub fn check(&mut self, state: &RobotState, tau: &JointVector) {
         let l = &self.limits;

@@ -4,18 +4,18 @@
 //! then open or close the gripper. Every tick is checked against the arm's limits and can be
 //! logged (t, q, dq, tau, TCP pose, reference) for CSV. The keyframe format is in `keyframe`,
 //! the limit monitor and log rows in `monitor`, the straight-line waypoints in `waypoints`.
-use nalgebra::{Isometry3, Vector6};
+use nalgebra::Isometry3;
 use serde::Serialize;
 
 use super::backend::{BackendError, Command, Cycle, RobotBackend, RobotState};
 use super::controller::ArmController;
+use super::execution::{Execution, ExecutionOutcome, MotionPlan};
 use super::gripper::{GraspState, Gripper};
 use super::ik::{InverseKinematics, target_pose};
 use super::keyframe::Keyframe;
 use super::monitor::{LimitMonitor, LogRow, pose7};
-use super::pose_error::pose_error;
-use super::waypoints::{WAYPOINT_SWITCH, straight_line_goals};
-use crate::robot::{JointLimits, JointVector};
+use super::waypoints::straight_line_goals;
+use crate::robot::JointLimits;
 
 /// How one keyframe went.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -31,6 +31,21 @@ pub struct KeyframeReport {
     pub gripper: Option<String>,
     /// Wall-clock time IK took for this keyframe (ms).
     pub ik_ms: f64,
+}
+
+impl KeyframeReport {
+    /// A keyframe that was never executed (no plan).
+    fn failed(error: String, ik_ms: f64) -> Self {
+        Self {
+            reached: false,
+            pos_err_mm: f64::NAN,
+            rot_err_deg: f64::NAN,
+            time_s: 0.0,
+            error: Some(error),
+            gripper: None,
+            ik_ms,
+        }
+    }
 }
 
 /// How the whole run went.
@@ -151,28 +166,23 @@ impl Runner {
             let (target, goals) = match goal {
                 Ok(g) => g,
                 Err(e) => {
-                    reports.push(KeyframeReport {
-                        reached: false,
-                        pos_err_mm: f64::NAN,
-                        rot_err_deg: f64::NAN,
-                        time_s: 0.0,
-                        error: Some(e.to_string()),
-                        gripper: None,
-                        ik_ms,
-                    });
+                    reports.push(KeyframeReport::failed(e.to_string(), ik_ms));
                     continue;
                 }
             };
             seed = *goals.last().unwrap_or(&seed);
-            let error = self.move_and_settle(backend, &target, &goals)?;
-            let (ep, er) = (error.fixed_rows::<3>(0).norm(), error.fixed_rows::<3>(3).norm());
+            let plan = match MotionPlan::new(target, &goals, keyframe.gripper_open) {
+                Ok(plan) => plan,
+                Err(e) => {
+                    reports.push(KeyframeReport::failed(e.to_string(), ik_ms));
+                    continue;
+                }
+            };
+            let outcome = self.execute(backend, plan)?;
+            let (ep, er) = (outcome.position_error(), outcome.rotation_error());
             let c = self.controller.osc().config();
             let reached = ep <= c.reached_position && er <= c.reached_orientation;
-            let gripper = if keyframe.gripper_open != self.gripper.is_open_commanded() {
-                Some(self.actuate_gripper(backend, keyframe.gripper_open)?)
-            } else {
-                None
-            };
+            let gripper = outcome.gripper;
             reports.push(KeyframeReport {
                 reached,
                 pos_err_mm: ep * 1e3,
@@ -232,62 +242,23 @@ impl Runner {
         command
     }
 
-    /// Tracks the trajectory to its end, then waits until the TCP is within tolerance of
-    /// `target` and still, or the settle timeout passes. Returns the final pose error.
-    fn move_and_settle<B: RobotBackend>(
+    /// Executes one planned keyframe (motion, settle, gripper) in lock-step on the backend.
+    fn execute<B: RobotBackend>(
         &mut self,
         backend: &mut B,
-        target: &Isometry3<f64>,
-        goals: &[JointVector],
-    ) -> Result<Vector6<f64>, BackendError> {
-        let c = *self.controller.osc().config();
-        let mut settle_start: Option<f64> = None;
-        let mut within = 0u32;
-        let mut error = Vector6::zeros();
-        let mut next = 0usize;
+        plan: MotionPlan,
+    ) -> Result<ExecutionOutcome, BackendError> {
+        let mut execution = Execution::start(plan, &self.gripper, self.gripper_timeout);
         backend.control(|state| {
-            // Feed the waypoints: the next one as soon as the reference nears the current one,
-            // so the motion flows through them.
-            if next < goals.len()
-                && (next == 0 || (self.controller.reference().q - goals[next - 1]).norm() < WAYPOINT_SWITCH)
-            {
-                self.controller.set_goal(&goals[next]);
-                next += 1;
-            }
+            execution.before_tick(&mut self.controller, &mut self.gripper, state);
             let command = self.tick(state);
-            error = pose_error(target, self.controller.tcp());
-            if next < goals.len() || !self.controller.trajectory_finished() {
-                return Cycle::Continue(command);
-            }
-            let since = *settle_start.get_or_insert(state.time);
-            let close = error.fixed_rows::<3>(0).norm() <= 0.5 * c.reached_position
-                && error.fixed_rows::<3>(3).norm() <= 0.5 * c.reached_orientation
-                && state.dq.norm() < 0.01;
-            within = if close { within + 1 } else { 0 };
-            if within >= 50 || state.time - since >= c.settle_timeout {
+            if execution.after_tick(&self.controller, &mut self.gripper, state) {
                 Cycle::Finish(command)
             } else {
                 Cycle::Continue(command)
             }
         })?;
-        Ok(error)
-    }
-
-    fn actuate_gripper<B: RobotBackend>(&mut self, backend: &mut B, open: bool) -> Result<GraspState, BackendError> {
-        self.controller.set_gripper(open);
-        self.gripper.command(open);
-        let t0 = backend.read_state().time;
-        let mut result = GraspState::Moving;
-        backend.control(|state| {
-            let command = self.tick(state);
-            result = self.gripper.update(state);
-            if result.is_settled() || state.time - t0 > self.gripper_timeout {
-                Cycle::Finish(command)
-            } else {
-                Cycle::Continue(command)
-            }
-        })?;
-        Ok(result)
+        Ok(execution.outcome())
     }
 }
 

@@ -11,13 +11,13 @@ use crate::robot::{JointVector, Kinematics};
 const WAYPOINT_SPACING: f64 = 0.03;
 const WAYPOINT_ANGLE: f64 = 0.1;
 /// Switch to the next waypoint when the joint reference is this close to the current one (rad).
-pub(super) const WAYPOINT_SWITCH: f64 = 0.03;
+pub const WAYPOINT_SWITCH: f64 = 0.03;
 
 /// Joint goals along the straight line (and slerp) from `from` to `target`, one every
 /// 3 cm / 0.1 rad, each solved by IK seeded with the previous one, so that the TCP moves
 /// along a line near objects instead of along a joint-space curve. If a point of the line
 /// has no IK solution the move goes straight to the target in joint space.
-pub(super) fn straight_line_goals(
+pub fn straight_line_goals(
     ik: &InverseKinematics,
     kinematics: &mut Kinematics,
     from: &Isometry3<f64>,

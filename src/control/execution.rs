@@ -1,0 +1,204 @@
+//! One keyframe's execution, tick by tick: feed its straight-line joint goals to the trajectory,
+//! wait until the TCP has settled on the target (or the settle time-out passes), then open or
+//! close the gripper if the keyframe asks for it and wait until the fingers stop. The lock-step
+//! [`super::runner::Runner`] and the real-time runtime's control thread both drive it, one call
+//! of [`Execution::before_tick`] and [`Execution::after_tick`] around each controller tick, so a
+//! keyframe is executed the same way in both. Nothing here allocates: a [`MotionPlan`] is a
+//! fixed-size value that can cross a lock-free queue.
+use nalgebra::{Isometry3, Vector6};
+
+use super::backend::RobotState;
+use super::controller::ArmController;
+use super::gripper::{GraspState, Gripper};
+use super::pose_error::pose_error;
+use super::waypoints::WAYPOINT_SWITCH;
+use crate::robot::{JointLimits, JointVector};
+
+/// Most joint goals one motion may have (the straight-line waypoints stop at 100).
+pub const MAX_WAYPOINTS: usize = 100;
+
+/// Consecutive settled ticks that count as arrived.
+const SETTLED_TICKS: u32 = 50;
+
+/// A planned keyframe: the TCP target (base frame), the joint goals that lead there and the
+/// gripper state once it is reached.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct MotionPlan {
+    pub target: Isometry3<f64>,
+    pub gripper_open: bool,
+    goals: [JointVector; MAX_WAYPOINTS],
+    len: usize,
+}
+
+/// Why joint goals cannot form a plan.
+#[derive(Debug, Clone, Copy, PartialEq, thiserror::Error)]
+pub enum PlanError {
+    #[error("a motion needs 1 to {MAX_WAYPOINTS} joint goals, got {0}")]
+    GoalCount(usize),
+    #[error("joint goal {index} is not finite or lies outside the joint limits")]
+    OutsideLimits { index: usize },
+    #[error("the target pose is not finite")]
+    NonFiniteTarget,
+}
+
+impl MotionPlan {
+    pub fn new(target: Isometry3<f64>, goals: &[JointVector], gripper_open: bool) -> Result<Self, PlanError> {
+        if goals.is_empty() || goals.len() > MAX_WAYPOINTS {
+            return Err(PlanError::GoalCount(goals.len()));
+        }
+        let mut plan = Self { target, gripper_open, goals: [JointVector::zeros(); MAX_WAYPOINTS], len: goals.len() };
+        plan.goals[..goals.len()].copy_from_slice(goals);
+        Ok(plan)
+    }
+
+    pub fn goals(&self) -> &[JointVector] {
+        &self.goals[..self.len]
+    }
+
+    /// Rejects a plan the arm must not follow: a non-finite target, or a goal that is not finite
+    /// or lies outside `limits`' joint range. Cheap enough for the control tick.
+    pub fn check(&self, limits: &JointLimits) -> Result<(), PlanError> {
+        let t = &self.target;
+        if !(t.translation.vector.iter().all(|v| v.is_finite()) && t.rotation.coords.iter().all(|v| v.is_finite())) {
+            return Err(PlanError::NonFiniteTarget);
+        }
+        for (index, q) in self.goals().iter().enumerate() {
+            let inside =
+                (0..7).all(|i| q[i].is_finite() && q[i] >= limits.position_min[i] && q[i] <= limits.position_max[i]);
+            if !inside {
+                return Err(PlanError::OutsideLimits { index });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Where an execution is.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Phase {
+    Moving,
+    /// Settled; the gripper command is applied at the next tick.
+    GripperPending,
+    Gripper {
+        since: f64,
+    },
+    Done,
+}
+
+/// How an execution ended.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExecutionOutcome {
+    /// TCP error (position m, rotation rad; target frame) when the motion settled or timed out,
+    /// before the gripper moved.
+    pub error: Vector6<f64>,
+    /// What the gripper did, if the keyframe changed its state.
+    pub gripper: Option<GraspState>,
+}
+
+impl ExecutionOutcome {
+    pub fn position_error(&self) -> f64 {
+        self.error.fixed_rows::<3>(0).norm()
+    }
+
+    pub fn rotation_error(&self) -> f64 {
+        self.error.fixed_rows::<3>(3).norm()
+    }
+}
+
+/// One keyframe being executed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Execution {
+    plan: MotionPlan,
+    next: usize,
+    settle_start: Option<f64>,
+    within: u32,
+    error: Vector6<f64>,
+    actuate: bool,
+    gripper_timeout: f64,
+    grasp: Option<GraspState>,
+    phase: Phase,
+}
+
+impl Execution {
+    /// Starts `plan`; the gripper is actuated after the motion if its commanded state differs
+    /// from the plan's, and given at most `gripper_timeout` seconds to settle.
+    pub fn start(plan: MotionPlan, gripper: &Gripper, gripper_timeout: f64) -> Self {
+        Self {
+            actuate: plan.gripper_open != gripper.is_open_commanded(),
+            plan,
+            next: 0,
+            settle_start: None,
+            within: 0,
+            error: Vector6::zeros(),
+            gripper_timeout,
+            grasp: None,
+            phase: Phase::Moving,
+        }
+    }
+
+    pub fn plan(&self) -> &MotionPlan {
+        &self.plan
+    }
+
+    pub fn is_done(&self) -> bool {
+        self.phase == Phase::Done
+    }
+
+    /// The outcome once [`Execution::is_done`].
+    pub fn outcome(&self) -> ExecutionOutcome {
+        ExecutionOutcome { error: self.error, gripper: self.grasp }
+    }
+
+    /// Call before the controller's tick: feeds the next waypoint as soon as the reference nears
+    /// the current one (so the motion flows through them), or starts the gripper.
+    pub fn before_tick(&mut self, controller: &mut ArmController, gripper: &mut Gripper, state: &RobotState) {
+        match self.phase {
+            Phase::Moving => {
+                let goals = self.plan.goals();
+                if self.next < goals.len()
+                    && (self.next == 0 || (controller.reference().q - goals[self.next - 1]).norm() < WAYPOINT_SWITCH)
+                {
+                    controller.set_goal(&goals[self.next]);
+                    self.next += 1;
+                }
+            }
+            Phase::GripperPending => {
+                controller.set_gripper(self.plan.gripper_open);
+                gripper.command(self.plan.gripper_open);
+                self.phase = Phase::Gripper { since: state.time };
+            }
+            Phase::Gripper { .. } | Phase::Done => {}
+        }
+    }
+
+    /// Call after the controller's tick with the same state. Returns true when this tick ended
+    /// the execution (its command is the last one of the keyframe).
+    pub fn after_tick(&mut self, controller: &ArmController, gripper: &mut Gripper, state: &RobotState) -> bool {
+        match self.phase {
+            Phase::Moving => {
+                let c = controller.osc().config();
+                self.error = pose_error(&self.plan.target, controller.tcp());
+                if self.next < self.plan.len || !controller.trajectory_finished() {
+                    return false;
+                }
+                let since = *self.settle_start.get_or_insert(state.time);
+                let close = self.error.fixed_rows::<3>(0).norm() <= 0.5 * c.reached_position
+                    && self.error.fixed_rows::<3>(3).norm() <= 0.5 * c.reached_orientation
+                    && state.dq.norm() < 0.01;
+                self.within = if close { self.within + 1 } else { 0 };
+                if self.within >= SETTLED_TICKS || state.time - since >= c.settle_timeout {
+                    self.phase = if self.actuate { Phase::GripperPending } else { Phase::Done };
+                }
+            }
+            Phase::Gripper { since } => {
+                let grasp = gripper.update(state);
+                self.grasp = Some(grasp);
+                if grasp.is_settled() || state.time - since > self.gripper_timeout {
+                    self.phase = Phase::Done;
+                }
+            }
+            Phase::GripperPending | Phase::Done => {}
+        }
+        self.phase == Phase::Done
+    }
+}

@@ -1,0 +1,305 @@
+//! The control thread: it owns the backend, the controller, the gripper and the limit monitor,
+//! and runs one tick per period. A tick takes a new plan if one is waiting (never waits for
+//! one, except in the simulated-latency mode, where waiting costs no simulated time), drives
+//! the keyframe's [`Execution`], computes the torques, applies them, and hands its timing,
+//! events and state to the other threads through wait-free queues and a triple buffer. It does
+//! not lock, allocate (checked with [`super::alloc_count`]), log or block.
+use crate::control::backend::{Command, RobotBackend, RobotState};
+use crate::control::controller::ArmController;
+use crate::control::execution::Execution;
+use crate::control::gripper::Gripper;
+use crate::control::monitor::LimitMonitor;
+
+use super::alloc_count::TickScope;
+use super::messages::{Event, PlanMessage, Rejection, Request, Status, TickRecord};
+use super::pacing::{Pacer, now_ns};
+use super::watchdog::Watchdog;
+
+/// How ticks are paced and when plans take effect.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Pacing {
+    /// One tick per period of wall-clock time; a plan takes effect at the first tick that finds it.
+    WallClock,
+    /// Ticks run as fast as the machine allows and the plan for a request made at tick `t`
+    /// takes effect at tick `t + ticks` exactly, whatever the threads' timing: the asynchronous
+    /// path, reproducible bit for bit. The tick waits (costing wall-clock time only) if the
+    /// plan is not there yet.
+    SimulatedLatency { ticks: u64 },
+}
+
+/// When the control loop stops.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ControlSettings {
+    pub pacing: Pacing,
+    /// Stop after this many ticks.
+    pub max_ticks: u64,
+    /// Stop once this many keyframes are done (`None`: keep asking until `max_ticks`).
+    pub keyframes: Option<u64>,
+    /// An unanswered request older than this many ticks stops the run (the arm holds).
+    pub watchdog_ticks: u64,
+    /// This many rejected keyframes in a row stop the run (the arm holds).
+    pub max_rejections_in_a_row: u32,
+    /// Longest time the gripper may take to open or close (s).
+    pub gripper_timeout: f64,
+    /// In the simulated-latency mode: the longest wall-clock time a tick waits for a plan (s).
+    pub stall_timeout_s: f64,
+}
+
+/// Why the control loop stopped.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum StopReason {
+    TickLimit,
+    KeyframesDone,
+    /// The policy or planner did not answer within the watchdog time.
+    PolicySilent,
+    /// The policy's keyframes were rejected too many times in a row.
+    PolicyGarbage,
+    /// The backend refused a command.
+    BackendError,
+    /// Asked to stop from outside.
+    Stopped,
+}
+
+/// The control thread's own figures.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ControlSummary {
+    pub ticks: u64,
+    pub stop: StopReason,
+    /// Ticks whose compute ended after their deadline (release + period).
+    pub deadline_misses: u64,
+    /// Ticks that blocked waiting for a plan.
+    pub waited_ticks: u64,
+    pub keyframes_done: u64,
+    pub rejections: u64,
+    /// Timing records or events the logger's queues had no room for.
+    pub dropped_records: u64,
+    pub monitor: LimitMonitor,
+    pub qp_fallbacks: u64,
+    pub final_state: RobotState,
+}
+
+/// The control thread's ends of the hand-offs.
+pub struct ControlPorts {
+    pub requests: rtrb::Producer<Request>,
+    pub plans: rtrb::Consumer<PlanMessage>,
+    pub records: rtrb::Producer<TickRecord>,
+    pub events: rtrb::Producer<Event>,
+    pub status: triple_buffer::Input<Status>,
+    pub stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+/// The control loop and everything it owns.
+pub struct ControlLoop<B: RobotBackend> {
+    pub backend: B,
+    pub controller: ArmController,
+    pub gripper: Gripper,
+    pub monitor: LimitMonitor,
+    pub settings: ControlSettings,
+}
+
+/// The request awaiting its plan.
+#[derive(Debug, Clone, Copy)]
+struct Outstanding {
+    id: u64,
+    tick: u64,
+}
+
+impl<B: RobotBackend> ControlLoop<B> {
+    /// Runs ticks until a stop condition; returns the loop (backend included) and its figures.
+    pub fn run(mut self, mut ports: ControlPorts) -> (Self, ControlSummary) {
+        let period_ns = (self.backend.period() * 1e9).round() as u64;
+        let pacer = Pacer::new(period_ns);
+        let mut state = self.backend.read_state();
+        let mut execution: Option<(u64, Execution)> = None;
+        let mut outstanding: Option<Outstanding> = None;
+        let mut early: Option<PlanMessage> = None;
+        let mut watchdog = Watchdog::new(self.settings.watchdog_ticks);
+        let mut next_id = 0u64;
+        let mut s = Summary::default();
+        let mut tick = 0u64;
+        let stop = loop {
+            if tick >= self.settings.max_ticks {
+                break StopReason::TickLimit;
+            }
+            if ports.stop.load(std::sync::atomic::Ordering::Relaxed) {
+                break StopReason::Stopped;
+            }
+            let wake_late_ns = match self.settings.pacing {
+                Pacing::WallClock => pacer.wait_for(tick),
+                Pacing::SimulatedLatency { .. } => 0,
+            };
+            let started = now_ns();
+            // Counted from the second tick: the first sizes the QP solver's workspace.
+            let scope = (tick > 0).then(TickScope::enter);
+            let mut waited = false;
+            let mut stalled = false;
+            // Ask for a keyframe when idle.
+            if execution.is_none()
+                && outstanding.is_none()
+                && self.settings.keyframes.is_none_or(|k| s.keyframes_done < k)
+            {
+                let request = Request { id: next_id, tick, state };
+                if ports.requests.push(request).is_ok() {
+                    outstanding = Some(Outstanding { id: next_id, tick });
+                    watchdog.arm(tick);
+                    s.event(&mut ports.events, Event::Requested { request: next_id, tick });
+                    next_id += 1;
+                }
+            }
+            // Take the plan if it is due.
+            if let Some(o) = outstanding {
+                let message = match self.settings.pacing {
+                    Pacing::WallClock => ports.plans.pop().ok(),
+                    Pacing::SimulatedLatency { ticks } => {
+                        if early.is_none() {
+                            early = ports.plans.pop().ok();
+                        }
+                        if tick >= o.tick + ticks && early.is_none() {
+                            waited = true;
+                            early = wait_for_plan(&mut ports.plans, self.settings.stall_timeout_s);
+                            stalled = early.is_none();
+                        }
+                        if tick >= o.tick + ticks { early.take() } else { None }
+                    }
+                };
+                if let Some(m) = message.filter(|m| m.request == o.id) {
+                    outstanding = None;
+                    watchdog.disarm();
+                    match m.outcome.and_then(|plan| {
+                        plan.check(self.monitor.limits()).map(|()| plan).map_err(|_| Rejection::BadPlan)
+                    }) {
+                        Ok(plan) => {
+                            execution =
+                                Some((m.request, Execution::start(plan, &self.gripper, self.settings.gripper_timeout)));
+                            s.rejections_in_a_row = 0;
+                            s.event(&mut ports.events, Event::PlanStarted { request: m.request, tick });
+                        }
+                        Err(why) => {
+                            s.rejections += 1;
+                            s.rejections_in_a_row += 1;
+                            s.event(&mut ports.events, Event::Rejected { request: m.request, tick, why });
+                        }
+                    }
+                }
+            }
+            if let Some((_, e)) = execution.as_mut() {
+                e.before_tick(&mut self.controller, &mut self.gripper, &state);
+            }
+            let command: Command = self.controller.tick(&state);
+            self.monitor.check(&state, &command.tau);
+            let mut finished = None;
+            if let Some((id, e)) = execution.as_mut()
+                && e.after_tick(&self.controller, &mut self.gripper, &state)
+            {
+                finished = Some((*id, e.outcome()));
+            }
+            let computed_ns = now_ns();
+            let cycled = self.backend.cycle(&command);
+            drop(scope);
+            let done_ns = now_ns();
+            if let Some((request, outcome)) = finished {
+                execution = None;
+                s.keyframes_done += 1;
+                s.event(&mut ports.events, Event::KeyframeDone { request, tick, outcome });
+            }
+            if let Pacing::WallClock = self.settings.pacing
+                && done_ns > pacer.release_ns(tick) + period_ns
+            {
+                s.deadline_misses += 1;
+            }
+            s.waited_ticks += u64::from(waited);
+            let record = TickRecord {
+                tick,
+                compute_ns: clamp_u32(computed_ns - started),
+                backend_ns: clamp_u32(done_ns - computed_ns),
+                wake_late_ns: clamp_u32(wake_late_ns),
+                waited,
+            };
+            if ports.records.push(record).is_err() {
+                s.dropped += 1;
+            }
+            tick += 1;
+            let backend_failed = match cycled {
+                Ok(next) => {
+                    state = next;
+                    false
+                }
+                Err(_) => true,
+            };
+            ports.status.write(Status {
+                tick,
+                state,
+                executing: execution.map(|(id, _)| id),
+                keyframes_done: s.keyframes_done,
+                finished: false,
+            });
+            if backend_failed {
+                break StopReason::BackendError;
+            }
+            if let Some(o) = outstanding
+                && let Some(ticks) = if stalled { Some(tick - o.tick) } else { watchdog.expired(tick) }
+            {
+                s.event(&mut ports.events, Event::WatchdogHold { request: o.id, tick, ticks });
+                break StopReason::PolicySilent;
+            }
+            if s.rejections_in_a_row >= self.settings.max_rejections_in_a_row {
+                break StopReason::PolicyGarbage;
+            }
+            if execution.is_none() && self.settings.keyframes.is_some_and(|k| s.keyframes_done >= k) {
+                break StopReason::KeyframesDone;
+            }
+        };
+        ports.status.write(Status { tick, state, executing: None, keyframes_done: s.keyframes_done, finished: true });
+        let summary = ControlSummary {
+            ticks: tick,
+            stop,
+            deadline_misses: s.deadline_misses,
+            waited_ticks: s.waited_ticks,
+            keyframes_done: s.keyframes_done,
+            rejections: s.rejections,
+            dropped_records: s.dropped,
+            monitor: self.monitor,
+            qp_fallbacks: self.controller.osc().stats().fallbacks,
+            final_state: state,
+        };
+        (self, summary)
+    }
+}
+
+#[derive(Debug, Default)]
+struct Summary {
+    deadline_misses: u64,
+    waited_ticks: u64,
+    keyframes_done: u64,
+    rejections: u64,
+    rejections_in_a_row: u32,
+    dropped: u64,
+}
+
+impl Summary {
+    fn event(&mut self, events: &mut rtrb::Producer<Event>, event: Event) {
+        if events.push(event).is_err() {
+            self.dropped += 1;
+        }
+    }
+}
+
+fn clamp_u32(ns: u64) -> u32 {
+    u32::try_from(ns).unwrap_or(u32::MAX)
+}
+
+/// Simulated-latency mode only: spins (yielding) until a plan arrives or `timeout_s` of
+/// wall-clock time passes.
+fn wait_for_plan(plans: &mut rtrb::Consumer<PlanMessage>, timeout_s: f64) -> Option<PlanMessage> {
+    let deadline = now_ns() + (timeout_s * 1e9) as u64;
+    loop {
+        if let Ok(m) = plans.pop() {
+            return Some(m);
+        }
+        if now_ns() > deadline || plans.is_abandoned() {
+            return None;
+        }
+        std::thread::yield_now();
+    }
+}

@@ -1,0 +1,123 @@
+//! Pacing the control thread by absolute deadlines, and the operating-system settings a
+//! real-time thread asks for. Tick `i` is released at `start + i * period` and must finish its
+//! compute before `start + (i + 1) * period`; the thread sleeps with `clock_nanosleep`
+//! (`CLOCK_MONOTONIC`, `TIMER_ABSTIME`) until the release, so lateness never accumulates. On a
+//! real robot its packets pace the loop instead.
+
+/// Absolute-deadline pacing on the monotonic clock.
+#[derive(Debug, Clone, Copy)]
+pub struct Pacer {
+    start_ns: u64,
+    period_ns: u64,
+}
+
+/// Nanoseconds on the monotonic clock.
+pub fn now_ns() -> u64 {
+    let mut ts = libc::timespec { tv_sec: 0, tv_nsec: 0 };
+    // SAFETY: `ts` is a valid timespec; CLOCK_MONOTONIC always exists on Linux.
+    unsafe { libc::clock_gettime(libc::CLOCK_MONOTONIC, &raw mut ts) };
+    ts.tv_sec as u64 * 1_000_000_000 + ts.tv_nsec as u64
+}
+
+impl Pacer {
+    /// Tick 0 is released one period from now.
+    pub fn new(period_ns: u64) -> Self {
+        Self { start_ns: now_ns() + period_ns, period_ns }
+    }
+
+    pub fn period_ns(&self) -> u64 {
+        self.period_ns
+    }
+
+    /// Release time of tick `i`.
+    pub fn release_ns(&self, i: u64) -> u64 {
+        self.start_ns + i * self.period_ns
+    }
+
+    /// Sleeps until tick `i`'s release (returns at once if it has passed) and returns how late
+    /// the thread woke (ns).
+    pub fn wait_for(&self, i: u64) -> u64 {
+        let release = self.release_ns(i);
+        let ts = libc::timespec { tv_sec: (release / 1_000_000_000) as _, tv_nsec: (release % 1_000_000_000) as _ };
+        loop {
+            // SAFETY: valid timespec, no remainder wanted with TIMER_ABSTIME.
+            let rc = unsafe {
+                libc::clock_nanosleep(libc::CLOCK_MONOTONIC, libc::TIMER_ABSTIME, &raw const ts, std::ptr::null_mut())
+            };
+            if rc != libc::EINTR {
+                break;
+            }
+        }
+        now_ns().saturating_sub(release)
+    }
+}
+
+/// What the real-time settings of a run came to.
+#[derive(Debug, Clone, PartialEq, Eq, serde::Serialize)]
+pub struct RtSettings {
+    /// The process's memory is locked (`mlockall`): no page faults in the tick.
+    pub memory_locked: bool,
+    /// The control thread runs under SCHED_FIFO.
+    pub fifo: bool,
+    /// The control thread is pinned to one core.
+    pub pinned_core: Option<usize>,
+    /// Why a setting was not applied (the run goes on without it).
+    pub notes: Vec<String>,
+}
+
+/// SCHED_FIFO priority of the control thread (libfranka's default is 80).
+const FIFO_PRIORITY: i32 = 80;
+
+/// Locks memory, then gives the calling thread SCHED_FIFO and pins it to the last core, each
+/// where permitted. A refusal is a note, not a failure: the run goes on as an ordinary thread.
+pub fn make_current_thread_realtime() -> RtSettings {
+    let mut notes = Vec::new();
+    // SAFETY: plain system calls on the current process/thread with valid arguments.
+    let memory_locked = unsafe { libc::mlockall(libc::MCL_CURRENT | libc::MCL_FUTURE) } == 0;
+    if !memory_locked {
+        notes.push(format!(
+            "mlockall refused ({}): page faults can stall ticks; raise the memlock limit (ulimit -l unlimited) or grant CAP_IPC_LOCK",
+            std::io::Error::last_os_error()
+        ));
+    }
+    let param = libc::sched_param { sched_priority: FIFO_PRIORITY };
+    // SAFETY: valid thread handle (self) and parameter.
+    let rc = unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &raw const param) };
+    let fifo = rc == 0;
+    if !fifo {
+        notes.push(format!(
+            "SCHED_FIFO refused ({}): the control thread is an ordinary thread, so wake-ups can be late under load; grant CAP_SYS_NICE or an rtprio limit (see the README's real-robot section)",
+            std::io::Error::from_raw_os_error(rc)
+        ));
+    }
+    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
+    let core = cores - 1;
+    // SAFETY: the set is zeroed and filled with one valid CPU index before use.
+    let pinned = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(core, &mut set);
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &raw const set) == 0
+    };
+    if !pinned {
+        notes.push(format!("pinning to core {core} refused ({})", std::io::Error::last_os_error()));
+    }
+    RtSettings { memory_locked, fifo, pinned_core: pinned.then_some(core), notes }
+}
+
+/// Undoes the memory lock (the other settings end with the thread).
+pub fn release_memory_lock() {
+    // SAFETY: no arguments; harmless when nothing is locked.
+    unsafe { libc::munlockall() };
+}
+
+/// Lowers the calling thread's priority (nice 10, SCHED_BATCH): background work (policy,
+/// planner, logger) then yields the cores to the control thread when it wakes.
+pub fn make_current_thread_background() {
+    let param = libc::sched_param { sched_priority: 0 };
+    // SAFETY: plain system calls on the current thread with valid arguments; failures leave the
+    // thread at normal priority, which is correct, only less favourable to the control thread.
+    unsafe {
+        libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_BATCH, &raw const param);
+        libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 10);
+    }
+}

@@ -18,7 +18,7 @@ use flowram::rollout::learned::DEFAULT_CAMERAS;
 use flowram::rollout::stack::{load_controller_config, realtime_stack};
 use flowram::runtime::alloc_count;
 use flowram::runtime::control::{ControlSettings, Pacing};
-use flowram::runtime::messages::Request;
+use flowram::runtime::messages::{Answer, Request};
 use flowram::runtime::pacing::make_current_thread_background;
 use flowram::runtime::planner::WorkspaceBox;
 use flowram::runtime::session::{KeyframeSource, Percentiles, SessionSettings, run_session};
@@ -95,11 +95,11 @@ impl Shuttle {
 }
 
 impl KeyframeSource for Shuttle {
-    fn propose(&mut self, _request: &Request) -> Result<Keyframe, String> {
+    fn propose(&mut self, _request: &Request) -> Result<Answer, String> {
         self.infer();
         let k = self.poses[self.next % 2];
         self.next += 1;
-        Ok(k)
+        Ok(Answer::Keyframe(k))
     }
 
     fn idle(&mut self) {

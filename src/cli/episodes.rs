@@ -8,6 +8,7 @@ use flowram::files::write_atomic;
 use flowram::rollout::collection::{self, CollectOptions};
 use flowram::rollout::episode::{Actor, Observer, camera_rig, run_episode};
 use flowram::rollout::learned::DEFAULT_CAMERAS;
+use flowram::rollout::realtime::{RealtimeActor, RealtimeFigures, RealtimeOptions, run_realtime_episode};
 use flowram::sim::{Visuals, image};
 use flowram::tasks;
 use serde::Serialize;
@@ -46,6 +47,17 @@ pub struct RunArgs {
     video: Option<PathBuf>,
     #[arg(long, default_value = "front")]
     video_camera: String,
+    /// Run on the real-time runtime: MuJoCo stepped at wall-clock 1 kHz by a control thread while
+    /// the policy infers on its own thread (the arm holds while it thinks). Default: lock-step.
+    #[arg(long)]
+    realtime: bool,
+    /// With --realtime: the simulated-latency mode instead of wall clock; each keyframe takes
+    /// effect this many ms of simulated time after its observation (reproducible).
+    #[arg(long, requires = "realtime")]
+    latency_ms: Option<u64>,
+    /// With --realtime: do not ask for SCHED_FIFO, mlockall and a pinned core.
+    #[arg(long, requires = "realtime")]
+    no_rt: bool,
     #[arg(long)]
     json: bool,
 }
@@ -63,6 +75,9 @@ struct RunReport {
     problems: Vec<String>,
     /// The executed keyframes, world frame: position (m), quaternion w x y z, gripper open (1/0).
     actions: Vec<[f32; 8]>,
+    /// With --realtime: the runtime's timing figures.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    realtime: Option<RealtimeFigures>,
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
@@ -76,7 +91,29 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         anyhow::bail!("--checkpoint is for --policy flowram (this run uses --policy {:?})", args.policy);
     }
     let start = Instant::now();
+    let mut figures = None;
     let result = match args.policy {
+        _ if args.realtime => {
+            anyhow::ensure!(args.video.is_none(), "--video records in lock-step only; drop it or --realtime");
+            anyhow::ensure!(args.policy != ActorKind::Idle, "--realtime runs --policy expert or flowram");
+            let mut loaded = if args.policy == ActorKind::Flowram { Some(args.learned.load_actor()?) } else { None };
+            let options = RealtimeOptions {
+                latency_ticks: args.latency_ms,
+                max_keyframes: if loaded.is_some() { args.learned.max_keyframes } else { 100 },
+                realtime_scheduling: !args.no_rt && args.latency_ms.is_none(),
+                watchdog_s: 10.0,
+                max_seconds: 300.0,
+                cameras: args.learned.cameras.clone(),
+                image_size: loaded.as_ref().map_or(128, |a| a.policy.config().observation.image_size),
+            };
+            let actor = match loaded.as_mut() {
+                Some(a) => RealtimeActor::Policy(a),
+                None => RealtimeActor::Expert,
+            };
+            let (result, f) = run_realtime_episode(task.as_ref(), variation, args.seed, actor, &options)?;
+            figures = Some(f);
+            result
+        }
         ActorKind::Expert => run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Expert, None)?,
         ActorKind::Idle => {
             run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Idle { seconds: 5 }, None)?
@@ -107,6 +144,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         sim_seconds: result.sim_seconds,
         problems: result.problems.iter().map(|(k, p)| format!("keyframe {k}: {p}")).collect(),
         actions: result.actions.clone(),
+        realtime: figures,
     };
     if args.json {
         return super::print_json(&report);
@@ -123,6 +161,20 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
     );
     for p in &report.problems {
         println!("  {p}");
+    }
+    if let Some(f) = &report.realtime {
+        println!(
+            "  real-time: {} ticks, {} deadline misses, {} ticks waited on the policy, tick compute p99 {:.1} us (MuJoCo step p99 {:.1} us), wake latency p99 {:.1} / max {:.1} us, SCHED_FIFO {}, stop: {:?}",
+            f.ticks,
+            f.deadline_misses,
+            f.waited_on_policy_ticks,
+            f.compute_us.p99,
+            f.sim_step_us.p99,
+            f.wake_latency_us.p99,
+            f.wake_latency_us.max,
+            f.rt_scheduling,
+            f.stop
+        );
     }
     Ok(())
 }

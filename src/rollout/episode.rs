@@ -219,7 +219,7 @@ pub fn expert_plan(
 /// Resets the world and the task (seeded), builds the control stack and lets the objects
 /// settle while the controller holds the arm. Returns the task state, the runner and the start
 /// time.
-fn begin(
+pub(super) fn begin(
     task: &dyn Task,
     world: &mut World,
     variation: usize,
@@ -257,19 +257,19 @@ fn in_base(base: &Isometry3<f64>, k: usize, keyframe: &Keyframe) -> Result<Keyfr
 }
 
 /// A keyframe in the dataset layout of `proprio`: position, quaternion w x y z, gripper open.
-fn proprio_of(k: &Keyframe) -> [f32; 8] {
+pub(super) fn proprio_of(k: &Keyframe) -> [f32; 8] {
     let (p, q) = (k.position, k.quat_wxyz);
     [p[0], p[1], p[2], q[0], q[1], q[2], q[3], if k.gripper_open { 1.0 } else { 0.0 }].map(|v| v as f32)
 }
 
 /// The TCP pose now (world frame) and the gripper state, in the layout of `proprio`.
-fn tcp_proprio(world: &World, gripper_open: bool) -> [f32; 8] {
+pub(super) fn tcp_proprio(world: &World, gripper_open: bool) -> [f32; 8] {
     proprio_of(&Keyframe::at(&world.tcp_pose(), gripper_open))
 }
 
 /// The observation before a keyframe: the observer's camera frames (none without an observer)
 /// and the proprioception.
-fn observe(
+pub(super) fn observe(
     world: &mut World,
     cameras: Option<&mut Observer<'_>>,
     gripper_open: bool,

@@ -6,6 +6,8 @@
 //!   fed by the task's expert, nobody (idle), or a learned [`episode::KeyframePolicy`];
 //! - [`learned`]: a trained FlowRAM checkpoint as a keyframe policy, in lock-step with the
 //!   simulation;
+//! - [`realtime`]: one such episode on the real-time runtime (the policy and the 1 kHz control
+//!   thread run concurrently; the arm holds while the policy thinks);
 //! - [`collection`]: expert demonstrations collected into datasets;
 //! - [`evaluation`]: closed-loop success rates on held-out seeds, and held-out keyframe errors
 //!   against trivial baselines;
@@ -15,6 +17,7 @@ pub mod collection;
 pub mod episode;
 pub mod evaluation;
 pub mod learned;
+pub mod realtime;
 pub mod shard;
 pub mod stack;
 
@@ -55,6 +58,9 @@ pub enum RolloutError {
         "the policy needs square frames of one size; camera {camera} is {width}x{height} (the first is {size}x{size})"
     )]
     FrameSize { camera: String, width: usize, height: usize, size: usize },
+    /// The operating system refused a thread of the real-time runtime.
+    #[error("cannot start the real-time runtime's threads: {0}")]
+    Thread(String),
     /// An episode to be saved as a demonstration recorded no images (no cameras, or no keyframes).
     #[error("the episode recorded no images")]
     NoImages,

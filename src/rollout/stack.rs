@@ -51,6 +51,7 @@ pub fn realtime_stack(
     let planner = Planner { ik: runner.ik, kinematics, workspace };
     let control = ControlLoop {
         backend: world.detach()?,
+        tap: None,
         controller: runner.controller,
         gripper: Gripper::new(open),
         monitor: runner.monitor,

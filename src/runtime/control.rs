@@ -11,7 +11,7 @@ use crate::control::gripper::Gripper;
 use crate::control::monitor::LimitMonitor;
 
 use super::alloc_count::TickScope;
-use super::messages::{Event, PlanMessage, Rejection, Request, Status, TickRecord};
+use super::messages::{Event, PlanMessage, PlanOutcome, Rejection, Request, Status, TickRecord};
 use super::pacing::{Pacer, now_ns};
 use super::watchdog::Watchdog;
 
@@ -57,6 +57,8 @@ pub enum StopReason {
     PolicyGarbage,
     /// The backend refused a command.
     BackendError,
+    /// The keyframe source ended the episode.
+    SourceFinished,
     /// Asked to stop from outside.
     Stopped,
 }
@@ -89,9 +91,15 @@ pub struct ControlPorts {
     pub stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
 }
 
+/// Called with the backend just before each request goes out (for a simulated robot: the
+/// physics state copied into a preallocated buffer, so that the policy's cameras can render the
+/// scene the request is about). It runs inside the tick: it must not allocate or block.
+pub type RequestTap<B> = Box<dyn FnMut(&B, &Request) + Send>;
+
 /// The control loop and everything it owns.
 pub struct ControlLoop<B: RobotBackend> {
     pub backend: B,
+    pub tap: Option<RequestTap<B>>,
     pub controller: ArmController,
     pub gripper: Gripper,
     pub monitor: LimitMonitor,
@@ -134,12 +142,16 @@ impl<B: RobotBackend> ControlLoop<B> {
             let scope = (tick > 0).then(TickScope::enter);
             let mut waited = false;
             let mut stalled = false;
+            let mut finish = false;
             // Ask for a keyframe when idle.
             if execution.is_none()
                 && outstanding.is_none()
                 && self.settings.keyframes.is_none_or(|k| s.keyframes_done < k)
             {
-                let request = Request { id: next_id, tick, state };
+                let request = Request { id: next_id, tick, state, gripper_open: self.gripper.is_open_commanded() };
+                if let Some(tap) = self.tap.as_mut() {
+                    tap(&self.backend, &request);
+                }
                 if ports.requests.push(request).is_ok() {
                     outstanding = Some(Outstanding { id: next_id, tick });
                     watchdog.arm(tick);
@@ -166,16 +178,22 @@ impl<B: RobotBackend> ControlLoop<B> {
                 if let Some(m) = message.filter(|m| m.request == o.id) {
                     outstanding = None;
                     watchdog.disarm();
-                    match m.outcome.and_then(|plan| {
-                        plan.check(self.monitor.limits()).map(|()| plan).map_err(|_| Rejection::BadPlan)
-                    }) {
-                        Ok(plan) => {
+                    let planned = match m.outcome {
+                        PlanOutcome::Finish => None,
+                        PlanOutcome::Plan(plan) => {
+                            Some(plan.check(self.monitor.limits()).map(|()| plan).map_err(|_| Rejection::BadPlan))
+                        }
+                        PlanOutcome::Rejected(why) => Some(Err(why)),
+                    };
+                    match planned {
+                        None => finish = true,
+                        Some(Ok(plan)) => {
                             execution =
                                 Some((m.request, Execution::start(plan, &self.gripper, self.settings.gripper_timeout)));
                             s.rejections_in_a_row = 0;
                             s.event(&mut ports.events, Event::PlanStarted { request: m.request, tick });
                         }
-                        Err(why) => {
+                        Some(Err(why)) => {
                             s.rejections += 1;
                             s.rejections_in_a_row += 1;
                             s.event(&mut ports.events, Event::Rejected { request: m.request, tick, why });
@@ -242,6 +260,9 @@ impl<B: RobotBackend> ControlLoop<B> {
             {
                 s.event(&mut ports.events, Event::WatchdogHold { request: o.id, tick, ticks });
                 break StopReason::PolicySilent;
+            }
+            if finish {
+                break StopReason::SourceFinished;
             }
             if s.rejections_in_a_row >= self.settings.max_rejections_in_a_row {
                 break StopReason::PolicyGarbage;

@@ -6,21 +6,44 @@ use crate::control::execution::{ExecutionOutcome, MotionPlan};
 use crate::control::keyframe::Keyframe;
 use crate::robot::JointVector;
 
-/// Control -> policy: the next keyframe is wanted; `state` is the arm at tick `tick`.
+/// Control -> policy: the next keyframe is wanted; `state` is the arm at tick `tick` and
+/// `gripper_open` the gripper's commanded state.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Request {
     pub id: u64,
     pub tick: u64,
     pub state: RobotState,
+    pub gripper_open: bool,
 }
 
-/// Policy -> planner: the answer to request `request` (`None`: the policy failed), to be
-/// planned from the joint positions `from` (the arm at the request, at rest).
+/// What the keyframe source answers.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Answer {
+    /// Go to this keyframe (base frame).
+    Keyframe(Keyframe),
+    /// The source failed to produce one (the arm holds).
+    Failed,
+    /// The episode is over (the task is solved, or the source has nothing more).
+    Finish,
+}
+
+/// Policy -> planner: the answer to request `request`, to be planned from the joint positions
+/// `from` (the arm at the request, at rest).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Proposal {
     pub request: u64,
-    pub keyframe: Option<Keyframe>,
+    pub answer: Answer,
     pub from: JointVector,
+}
+
+/// What the planner made of an answer.
+// Fixed size on purpose: a boxed plan would be freed on the control thread.
+#[allow(clippy::large_enum_variant)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum PlanOutcome {
+    Plan(MotionPlan),
+    Rejected(Rejection),
+    Finish,
 }
 
 /// Why the planner refused a keyframe (the arm holds where it is).
@@ -67,7 +90,7 @@ impl Rejection {
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PlanMessage {
     pub request: u64,
-    pub outcome: Result<MotionPlan, Rejection>,
+    pub outcome: PlanOutcome,
 }
 
 /// Control -> logger: one tick's timing.

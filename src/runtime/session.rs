@@ -6,19 +6,20 @@ use std::sync::Arc;
 use std::sync::atomic::{AtomicBool, Ordering};
 
 use crate::control::backend::RobotBackend;
-use crate::control::keyframe::Keyframe;
 use crate::stats::percentile_sorted;
 
 use super::control::{ControlLoop, ControlPorts, ControlSummary};
-use super::messages::{Event, PlanMessage, Proposal, Request, Status, TickRecord};
+use super::messages::{Answer, Event, PlanMessage, PlanOutcome, Proposal, Rejection, Request, Status, TickRecord};
 use super::pacing::{RtSettings, make_current_thread_background, make_current_thread_realtime, release_memory_lock};
 use super::planner::Planner;
 
-/// Where keyframes come from: a policy, a file, a test's script. It runs on its own thread, so
-/// it may block and allocate.
-pub trait KeyframeSource: Send {
-    /// The next keyframe (base frame) for the arm in `request.state`, or why there is none.
-    fn propose(&mut self, request: &Request) -> Result<Keyframe, String>;
+/// Where keyframes come from: a policy, a file, a test's script. It runs on the thread that
+/// calls [`run_session`] (the policy thread: it may block and allocate, and it may hold things
+/// bound to that thread, such as an EGL renderer).
+pub trait KeyframeSource {
+    /// What to do for the arm in `request.state`: a keyframe (base frame), or the end of the
+    /// episode; an error is reported and the arm holds.
+    fn propose(&mut self, request: &Request) -> Result<Answer, String>;
 
     /// Called while no request is waiting; a policy that infers continuously works here.
     fn idle(&mut self) {
@@ -82,7 +83,8 @@ pub struct SessionOutcome<B: RobotBackend> {
     pub rt: Option<RtSettings>,
 }
 
-/// Runs `control` with `planner` and `source` on their own threads until the control loop stops.
+/// Runs `control` (on a new real-time thread), `planner` and a logger (on new background
+/// threads) and `source` (on this thread) until the control loop stops.
 pub fn run_session<B: RobotBackend + Send>(
     control: ControlLoop<B>,
     mut planner: Planner,
@@ -119,35 +121,6 @@ pub fn run_session<B: RobotBackend + Send>(
                 (out, rt)
             })?;
         let done = &done;
-        let policy_thread = scope.spawn(move || {
-            if rt_wanted {
-                make_current_thread_background();
-            }
-            let (mut answered, mut errors) = (0u64, Vec::new());
-            while !done.load(Ordering::Acquire) {
-                let Ok(request) = request_rx.pop() else {
-                    source.idle();
-                    continue;
-                };
-                let keyframe = match source.propose(&request) {
-                    Ok(k) => Some(k),
-                    Err(e) => {
-                        errors.push(e);
-                        None
-                    }
-                };
-                answered += 1;
-                let mut proposal = Proposal { request: request.id, keyframe, from: request.state.q };
-                while let Err(rtrb::PushError::Full(p)) = proposal_tx.push(proposal) {
-                    if done.load(Ordering::Acquire) {
-                        break;
-                    }
-                    proposal = p;
-                    std::thread::sleep(std::time::Duration::from_micros(100));
-                }
-            }
-            (answered, errors)
-        });
         let planner_thread = scope.spawn(move || {
             if rt_wanted {
                 make_current_thread_background();
@@ -157,9 +130,12 @@ pub fn run_session<B: RobotBackend + Send>(
                     std::thread::sleep(std::time::Duration::from_micros(100));
                     continue;
                 };
-                let outcome = match p.keyframe {
-                    Some(k) => planner.plan(&k, &p.from),
-                    None => Err(super::messages::Rejection::PolicyFailed),
+                let outcome = match p.answer {
+                    Answer::Keyframe(k) => {
+                        planner.plan(&k, &p.from).map_or_else(PlanOutcome::Rejected, PlanOutcome::Plan)
+                    }
+                    Answer::Failed => PlanOutcome::Rejected(Rejection::PolicyFailed),
+                    Answer::Finish => PlanOutcome::Finish,
                 };
                 let mut message = PlanMessage { request: p.request, outcome };
                 while let Err(rtrb::PushError::Full(m)) = plan_tx.push(message) {
@@ -193,6 +169,30 @@ pub fn run_session<B: RobotBackend + Send>(
             }
             (compute, backend, wake, events)
         });
+        // The policy loop, on this thread, until the control thread ends.
+        if rt_wanted {
+            make_current_thread_background();
+        }
+        let (mut proposals, mut source_errors) = (0u64, Vec::new());
+        while !control_thread.is_finished() {
+            let Ok(request) = request_rx.pop() else {
+                source.idle();
+                continue;
+            };
+            let answer = source.propose(&request).unwrap_or_else(|e| {
+                source_errors.push(e);
+                Answer::Failed
+            });
+            proposals += 1;
+            let mut proposal = Proposal { request: request.id, answer, from: request.state.q };
+            while let Err(rtrb::PushError::Full(p)) = proposal_tx.push(proposal) {
+                if control_thread.is_finished() {
+                    break;
+                }
+                proposal = p;
+                std::thread::sleep(std::time::Duration::from_micros(100));
+            }
+        }
         let joined = control_thread.join();
         done.store(true, Ordering::Release);
         let ((control, summary), rt) = match joined {
@@ -201,7 +201,6 @@ pub fn run_session<B: RobotBackend + Send>(
         };
         let (compute, backend, wake, events) = logger_thread.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
         planner_thread.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
-        let (proposals, source_errors) = policy_thread.join().unwrap_or_else(|p| std::panic::resume_unwind(p));
         Ok(SessionOutcome {
             control,
             summary,

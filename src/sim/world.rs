@@ -329,6 +329,43 @@ impl World {
         })
     }
 
+    /// Length of [`World::copy_physics_state`]'s output: qpos, qvel, act.
+    pub fn physics_state_len(&self) -> usize {
+        let m = self.model().ffi();
+        (m.nq + m.nv + m.na) as usize
+    }
+
+    /// Copies joint positions, velocities and actuator activations into `out` (at least
+    /// [`World::physics_state_len`] long, else nothing is copied); allocates nothing.
+    pub fn copy_physics_state(&self, out: &mut [f64]) {
+        let (q, v, a) = (self.data.qpos(), self.data.qvel(), self.data.act());
+        let (nq, nv, na) = (q.len(), v.len(), a.len());
+        if out.len() >= nq + nv + na {
+            out[..nq].copy_from_slice(q);
+            out[nq..nq + nv].copy_from_slice(v);
+            out[nq + nv..nq + nv + na].copy_from_slice(a);
+        }
+    }
+
+    /// Sets the state copied by [`World::copy_physics_state`] from a world of the same model,
+    /// and recomputes positions (to render it or check a task on it; time is not part of it).
+    pub fn set_physics_state(&mut self, state: &[f64]) -> Result<(), SimError> {
+        let n = self.physics_state_len();
+        if state.len() < n {
+            return Err(SimError::InvalidInput {
+                what: "physics state",
+                detail: format!("{} values for a model that needs {n} (qpos, qvel, act)", state.len()),
+            });
+        }
+        let (nq, nv) = (self.data.qpos().len(), self.data.qvel().len());
+        self.data.qpos_mut().copy_from_slice(&state[..nq]);
+        self.data.qvel_mut().copy_from_slice(&state[nq..nq + nv]);
+        let na = self.data.act().len();
+        self.data.act_mut().copy_from_slice(&state[nq + nv..nq + nv + na]);
+        self.data.forward();
+        Ok(())
+    }
+
     /// Recomputes positions, velocities and forces from the current state (after editing it).
     pub fn forward(&mut self) {
         self.data.forward();

@@ -281,3 +281,35 @@ fn a_policy_sees_only_the_cameras_its_config_names() {
     config.observation.cameras = vec!["front".into(), "front".into()];
     assert!(config.validate().is_err());
 }
+
+#[test]
+fn shipped_policy_configs_load_and_the_ten_task_box_holds_every_expert_keyframe() {
+    let dir = flowram::deps::models_dir().join("policy");
+    let mut loaded = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml") {
+            PolicyConfig::from_toml_file(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+            loaded += 1;
+        }
+    }
+    assert!(loaded >= 3, "paper.toml, cpu.toml, ten-tasks.toml");
+    // the ten-task recipe is the five-task one with a wider box
+    let ten = PolicyConfig::from_toml_file(&dir.join("ten-tasks.toml")).unwrap();
+    let mut same = ten.clone();
+    same.observation.workspace = PolicyConfig::cpu_default().unwrap().observation.workspace;
+    assert_eq!(same, PolicyConfig::cpu_default().unwrap());
+    let ws = &ten.observation.workspace;
+    for task in flowram::tasks::all() {
+        let mut world = flowram::tasks::load_world(task.as_ref()).unwrap();
+        for seed in 0..task.variation_count().min(3) as u64 {
+            let variation = seed as usize % task.variation_count();
+            let (keyframes, _) =
+                flowram::rollout::episode::expert_plan(task.as_ref(), &mut world, variation, seed).unwrap();
+            for k in &keyframes {
+                let p = k.position.map(|v| v as f32);
+                assert!(ws.contains(p), "{} seed {seed}: keyframe {p:?} outside the ten-task box", task.name());
+            }
+        }
+    }
+}

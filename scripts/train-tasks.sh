@@ -1,0 +1,46 @@
+#!/usr/bin/env bash
+# Makes a multi-task FlowRAM checkpoint from nothing:
+#   scripts/train-tasks.sh NAME CONFIG TASK [TASK...]
+#  1. expert demonstrations: DEMOS (default 100) successful episodes of each task from seed 0, and
+#     10 held-out episodes of each from seed 1000 (for `bench heldout`), into runs/data/;
+#  2. training with CONFIG into runs/NAME (FLOWRAM_TRAIN_STEPS overrides the config's steps);
+#  3. held-out keyframe errors and closed-loop success (EPISODES per task, default 50, seeds
+#     1000+) into runs/NAME/{heldout,success}.json.
+# Collection is skipped for datasets already there; rerunning continues the training if it was
+# killed (`train --resume`). scripts/train-five-tasks.sh and scripts/train-ten-tasks.sh call it
+# for the shipped checkpoints.
+set -euo pipefail
+cd "$(dirname "${BASH_SOURCE[0]}")/.."
+if [ $# -lt 3 ]; then
+  echo "usage: scripts/train-tasks.sh NAME CONFIG TASK [TASK...]" >&2
+  exit 2
+fi
+name=$1 config=$2
+shift 2
+tasks=("$@")
+scripts/setup.sh
+cargo build --release --locked
+bin=target/release/flowram
+demos="${DEMOS:-100}"
+run=runs/$name
+data=()
+held=()
+for task in "${tasks[@]}"; do
+  [ -f "runs/data/$task-$demos/index.json" ] || "$bin" collect --task "$task" --episodes "$demos" --seed 0 --out "runs/data/$task-$demos"
+  [ -f "runs/data/held_$task/index.json" ] || "$bin" collect --task "$task" --episodes 10 --seed 1000 --out "runs/data/held_$task"
+  data+=("runs/data/$task-$demos")
+  held+=("runs/data/held_$task")
+done
+data_list=$(IFS=,; echo "${data[*]}")
+held_list=$(IFS=,; echo "${held[*]}")
+steps=()
+[ -z "${FLOWRAM_TRAIN_STEPS:-}" ] || steps=(--steps "$FLOWRAM_TRAIN_STEPS")
+if [ -d "$run/checkpoints" ]; then
+  "$bin" train --data "$data_list" --out "$run" --resume "${steps[@]}"
+else
+  "$bin" train --data "$data_list" --out "$run" --config "$config" "${steps[@]}"
+fi
+"$bin" bench heldout --checkpoint "$run" --data "$held_list" --train-data "$data_list" --json > "$run/heldout.json"
+"$bin" bench success --checkpoint "$run" --tasks "$(IFS=,; echo "${tasks[*]}")" --episodes "${EPISODES:-50}" \
+  --max-keyframes 25 --out "$run/success.results.json" --json > "$run/success.json"
+echo "done: $run (heldout.json, success.json)"

@@ -30,6 +30,10 @@ pub enum BenchCommand {
     /// The real-time runtime: deadline misses, tick compute and wake-up latency percentiles,
     /// ticks that waited on the policy and allocations in ticks, over a long wall-clock run.
     Realtime(super::bench_realtime::RealtimeBenchArgs),
+    /// Fault streams injected into the real stack (bad keyframes, policy stalls and failures, QP
+    /// time-outs, dropped and late cycles, a blocked TCP): limit violations, non-finite
+    /// torques, panics, holds.
+    Faults(super::bench_realtime::FaultsBenchArgs),
 }
 
 #[derive(Debug, Args)]
@@ -186,6 +190,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Experts(args) => experts(args),
         BenchCommand::Shards(args) => shards(args),
         BenchCommand::Realtime(args) => super::bench_realtime::realtime(args),
+        BenchCommand::Faults(args) => super::bench_realtime::faults(args),
     }
 }
 

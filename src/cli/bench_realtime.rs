@@ -1,4 +1,4 @@
-//! `flowram bench realtime`: the real-time runtime's figures. MuJoCo is stepped at wall-clock
+//! `flowram bench realtime` and `flowram bench faults`: the real-time runtime's figures. MuJoCo is stepped at wall-clock
 //! 1 kHz by the control thread while the planner plans and (with `--with-policy`) a FlowRAM
 //! model infers continuously on its own threads; the arm moves back and forth between two
 //! keyframes the whole time, so ticks include re-plans, motion, settling and holding.
@@ -214,5 +214,63 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
             println!("note: {note}");
         }
     }
+    Ok(())
+}
+
+#[derive(Debug, Args)]
+pub struct FaultsBenchArgs {
+    /// Runs, each with its own fault stream (seeds --seed..--seed + runs).
+    #[arg(long, default_value_t = 1000)]
+    runs: u64,
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn faults(args: FaultsBenchArgs) -> anyhow::Result<()> {
+    if args.runs == 0 {
+        bail!("--runs must be at least 1");
+    }
+    let bar = indicatif::ProgressBar::new(args.runs);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("fault runs {bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}]")
+            .expect("a valid progress template"),
+    );
+    let t0 = Instant::now();
+    let report = flowram::rollout::faults::fault_runs(args.runs, args.seed, |n| bar.set_position(n))?;
+    bar.finish_and_clear();
+    let wall_s = t0.elapsed().as_secs_f64();
+    if args.json {
+        #[derive(Serialize)]
+        struct Out<'a> {
+            #[serde(flatten)]
+            report: &'a flowram::rollout::faults::FaultReport,
+            limit_violations: u64,
+            wall_s: f64,
+        }
+        println!(
+            "{}",
+            serde_json::to_string_pretty(&Out { report: &report, limit_violations: report.violations(), wall_s })?
+        );
+        return Ok(());
+    }
+    let r = &report;
+    println!("{} runs, {} ticks ({:.0} s wall)", r.runs, r.ticks, wall_s);
+    println!("faults injected: {}", r.faults.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "));
+    println!(
+        "limit violations: torque {}, torque rate {}, joint position {}, joint velocity {}; non-finite torques {}; panics {}",
+        r.torque_violations,
+        r.torque_rate_violations,
+        r.position_violations,
+        r.velocity_violations,
+        r.non_finite_torques,
+        r.panics
+    );
+    println!(
+        "holds: {} keyframes refused, {} runs ended by the watchdog; keyframes reached {}/{} commanded; QP fallback ticks {}",
+        r.holds_rejected, r.holds_watchdog, r.keyframes_reached, r.keyframes_commanded, r.qp_fallbacks
+    );
+    println!("runs ended: {}", r.stops.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "));
     Ok(())
 }

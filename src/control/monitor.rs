@@ -49,7 +49,14 @@ pub struct LimitMonitor {
     pub(super) limits: JointLimits,
     dt: f64,
     previous_tau: Option<JointVector>,
+    /// Ticks with any violation, and per kind (a tick can count under several kinds).
     pub violations: u64,
+    pub torque_violations: u64,
+    pub torque_rate_violations: u64,
+    pub position_violations: u64,
+    pub velocity_violations: u64,
+    /// Ticks whose commanded torque had a NaN or infinite value.
+    pub non_finite_torques: u64,
     pub max_torque_ratio: f64,
     pub max_torque_rate_ratio: f64,
     pub max_velocity_ratio: f64,
@@ -62,6 +69,11 @@ impl LimitMonitor {
             dt,
             previous_tau: None,
             violations: 0,
+            torque_violations: 0,
+            torque_rate_violations: 0,
+            position_violations: 0,
+            velocity_violations: 0,
+            non_finite_torques: 0,
             max_torque_ratio: 0.0,
             max_torque_rate_ratio: 0.0,
             max_velocity_ratio: 0.0,
@@ -76,7 +88,7 @@ impl LimitMonitor {
     /// Checks the state and the command of one tick.
     pub fn check(&mut self, state: &RobotState, tau: &JointVector) {
         let l = &self.limits;
-        let mut violated = false;
+        let (mut torque_over, mut rate_over, mut position_out, mut velocity_over) = (false, false, false, false);
         for i in 0..7 {
             let torque = tau[i].abs() / l.torque[i];
             let velocity = state.dq[i].abs() / l.velocity[i];
@@ -84,10 +96,18 @@ impl LimitMonitor {
             self.max_torque_ratio = self.max_torque_ratio.max(torque);
             self.max_velocity_ratio = self.max_velocity_ratio.max(velocity);
             self.max_torque_rate_ratio = self.max_torque_rate_ratio.max(rate);
-            let outside = state.q[i] < l.position_min[i] || state.q[i] > l.position_max[i];
-            violated |= torque > 1.0 + 1e-9 || rate > 1.0 + 1e-9 || velocity > 1.0 || outside;
+            // a NaN counts as over the limit
+            torque_over |= torque > 1.0 + 1e-9 || torque.is_nan();
+            rate_over |= rate > 1.0 + 1e-9 || rate.is_nan();
+            velocity_over |= velocity > 1.0;
+            position_out |= state.q[i] < l.position_min[i] || state.q[i] > l.position_max[i];
         }
-        self.violations += u64::from(violated);
+        self.non_finite_torques += u64::from(tau.iter().any(|v| !v.is_finite()));
+        self.torque_violations += u64::from(torque_over);
+        self.torque_rate_violations += u64::from(rate_over);
+        self.position_violations += u64::from(position_out);
+        self.velocity_violations += u64::from(velocity_over);
+        self.violations += u64::from(torque_over || rate_over || position_out || velocity_over);
         self.previous_tau = Some(*tau);
     }
 }

@@ -11,11 +11,14 @@
 //! - [`collection`]: expert demonstrations collected into datasets;
 //! - [`evaluation`]: closed-loop success rates on held-out seeds, and held-out keyframe errors
 //!   against trivial baselines;
+//! - [`faults`]: fault streams injected into the real stack, counting limit violations,
+//!   non-finite torques and panics (`flowram bench faults`);
 //! - [`shard`]: splitting collection and evaluation over processes and machines (which seeds a
 //!   shard owns; the scheduler's environment), for `flowram merge` to combine.
 pub mod collection;
 pub mod episode;
 pub mod evaluation;
+pub mod faults;
 pub mod learned;
 pub mod realtime;
 pub mod shard;

@@ -1,6 +1,7 @@
-//! The checkpoint shipped in `models/policy/pretrained/five-tasks` (see its model card): it loads,
-//! predicts the first keyframe of a held-out episode of every task near the expert's, and
-//! follows the instruction. Fails if the checkpoint, its config or the inference path breaks.
+//! The checkpoints shipped in `models/policy/pretrained/` (see their model cards): the default,
+//! `ten-tasks`, and `five-tasks` beside it. Each loads, predicts the first keyframe of a held-out
+//! episode of every task it was trained on where it did when shipped, and follows the
+//! instruction. Fails if a checkpoint, its config or the inference path breaks.
 use flowram::data::Episode;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
@@ -14,8 +15,12 @@ use flowram::tasks;
 const SEED: u64 = 1000;
 
 fn shipped() -> Policy {
+    load("five-tasks")
+}
+
+fn load(name: &str) -> Policy {
     flowram::policy::runtime::configure_malloc();
-    let path = flowram::deps::models_dir().join("policy/pretrained/five-tasks");
+    let path = flowram::deps::models_dir().join("policy/pretrained").join(name);
     Policy::load(&path, TextEncoder::load_installed().unwrap()).unwrap()
 }
 
@@ -35,12 +40,28 @@ fn first_keyframe(policy: &mut Policy, observation: &Observation) -> KeyframePos
 }
 
 #[test]
-#[ignore = "prints the shipped predictions for SHIPPED_PREDICTIONS"]
+#[ignore = "prints the shipped predictions for SHIPPED_PREDICTIONS and TEN_TASK_PREDICTIONS"]
 fn print_shipped_predictions() {
     for (task, predicted, expert) in shipped_first_keyframes() {
-        println!("{task} {:?} {:.1}", predicted.position, distance_mm(&predicted, &expert));
+        println!("five-tasks {task} {:?} {:.1}", predicted.position, distance_mm(&predicted, &expert));
+    }
+    for (task, predicted, expert) in first_keyframes("ten-tasks", &TEN_TASKS) {
+        println!("ten-tasks {task} {:?} {:.1}", predicted.position, distance_mm(&predicted, &expert));
     }
 }
+
+const TEN_TASKS: [&str; 10] = [
+    "open_drawer",
+    "push_buttons",
+    "slide_block",
+    "close_jar",
+    "stack_blocks",
+    "meat_off_grill",
+    "turn_tap",
+    "put_item_in_drawer",
+    "drag_stick",
+    "sweep_to_dustpan",
+];
 
 fn distance_mm(a: &KeyframePose, b: &KeyframePose) -> f64 {
     let d: f64 = (0..3).map(|i| (a.position[i] as f64 - b.position[i] as f64).powi(2)).sum();
@@ -69,9 +90,13 @@ const SHIPPED_PREDICTIONS: [(&str, [f32; 3], f64); 5] = [
 const REPRODUCE_MM: f64 = 5.0;
 
 fn shipped_first_keyframes() -> Vec<(&'static str, KeyframePose, KeyframePose)> {
-    let mut policy = shipped();
+    first_keyframes("five-tasks", &["open_drawer", "push_buttons", "slide_block", "close_jar", "stack_blocks"])
+}
+
+fn first_keyframes(checkpoint: &str, task_names: &[&'static str]) -> Vec<(&'static str, KeyframePose, KeyframePose)> {
+    let mut policy = load(checkpoint);
     let mut out = Vec::new();
-    for task in ["open_drawer", "push_buttons", "slide_block", "close_jar", "stack_blocks"] {
+    for &task in task_names {
         let variation = SEED as usize % tasks::by_name(task).unwrap().variation_count();
         let episode = expert(&policy, task, variation, SEED);
         let observation = Observation::from_episode(&episode, 0).unwrap();
@@ -148,4 +173,67 @@ fn changing_the_instruction_changes_the_drawer_the_policy_goes_to() {
         task.instruction(other),
         as_swapped.position
     );
+}
+
+/// The default checkpoint (`ten-tasks`): each task's first keyframe at [`SEED`] as predicted when
+/// it was shipped (world frame, m; 8 Euler steps, noise seed 0) and the expert's distance (mm).
+const TEN_TASK_PREDICTIONS: [[f32; 3]; 10] = [
+    [0.4588564, 0.0090225935, 0.9868793],
+    [0.4820298, 0.09110659, 0.83400345],
+    [0.46374816, 0.037287593, 0.8641214],
+    [0.48760766, 0.11482793, 0.8727117],
+    [0.4185584, 0.13082051, 0.87970895],
+    [0.47664893, -0.103936344, 0.95681745],
+    [0.5104698, 0.13646221, 0.913029],
+    [0.45658427, 0.010239124, 0.9932867],
+    [0.41661796, -0.24974653, 0.88481104],
+    [0.40696594, -0.40791106, 0.8853148],
+];
+const TEN_TASK_EXPERT_MM: [f64; 10] = [10.9, 259.7, 80.2, 132.3, 310.5, 93.6, 22.3, 7.2, 28.2, 13.7];
+
+#[test]
+fn the_default_ten_task_checkpoint_predicts_what_it_predicted_when_shipped() {
+    let default = flowram::deps::models_dir().join("policy/pretrained/ten-tasks");
+    assert!(default.join("ema.safetensors").is_file(), "the default checkpoint is missing");
+    let predictions = first_keyframes("ten-tasks", &TEN_TASKS);
+    for (i, (task, predicted, expert)) in predictions.iter().enumerate() {
+        let recorded = KeyframePose { position: TEN_TASK_PREDICTIONS[i], ..*predicted };
+        let moved = distance_mm(predicted, &recorded);
+        assert!(
+            moved < REPRODUCE_MM,
+            "{task}: predicted {:?}, shipped {:?} ({moved:.1} mm apart)",
+            predicted.position,
+            recorded.position
+        );
+        assert!(
+            (distance_mm(predicted, expert) - TEN_TASK_EXPERT_MM[i]).abs() < REPRODUCE_MM,
+            "{task}: the expert moved"
+        );
+    }
+    // where it is good it stays good: the drawers (open_drawer, put_item_in_drawer) within 2 cm
+    for (task, predicted, expert) in &predictions {
+        if task.contains("drawer") {
+            assert!(
+                distance_mm(predicted, expert) < 20.0,
+                "{task}: {:.1} mm from the expert",
+                distance_mm(predicted, expert)
+            );
+        }
+    }
+}
+
+#[test]
+fn the_default_checkpoint_goes_to_the_drawer_it_is_told() {
+    let mut policy = load("ten-tasks");
+    let task = tasks::by_name("open_drawer").unwrap();
+    let (told, other) = (0, 2);
+    let episode = expert(&policy, "open_drawer", told, SEED);
+    let other_episode = expert(&policy, "open_drawer", other, SEED);
+    let (told_target, other_target) =
+        (Observation::episode_action(&episode, 0), Observation::episode_action(&other_episode, 0));
+    let observation = Observation::from_episode(&episode, 0).unwrap();
+    let swapped = Observation { instruction: task.instruction(other), ..observation.clone() };
+    let (as_told, as_swapped) = (first_keyframe(&mut policy, &observation), first_keyframe(&mut policy, &swapped));
+    assert!(distance_mm(&as_told, &told_target) < distance_mm(&as_told, &other_target));
+    assert!(distance_mm(&as_swapped, &other_target) < distance_mm(&as_swapped, &told_target));
 }

@@ -11,7 +11,7 @@ use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
 #[derive(Debug, Args)]
 pub struct LearnedArgs {
     /// Run folder (runs/NAME) or checkpoint folder of a trained policy [default: the checkpoint
-    /// shipped in models/policy/pretrained/five-tasks].
+    /// shipped in models/policy/pretrained/ten-tasks; five-tasks is beside it].
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
     /// Euler steps (default: the checkpoint's flow.sampling_steps).
@@ -64,5 +64,5 @@ impl LearnedArgs {
 
 /// The five-task checkpoint shipped with the project (see its model card).
 pub fn shipped_checkpoint() -> PathBuf {
-    flowram::deps::models_dir().join("policy/pretrained/five-tasks")
+    flowram::deps::models_dir().join("policy/pretrained/ten-tasks")
 }

@@ -38,6 +38,9 @@ pub struct FaultReport {
     pub position_violations: u64,
     pub velocity_violations: u64,
     pub non_finite_torques: u64,
+    /// Runs with any limit violation, and those of them without a `blocked_tcp` fault.
+    pub runs_with_violations: u64,
+    pub runs_with_violations_without_blocked_tcp: u64,
     pub panics: u64,
     /// Keyframes refused (the arm held) and runs the watchdog ended (the arm held).
     pub holds_rejected: u64,
@@ -224,12 +227,16 @@ fn fault_run(seed: u64, report: &mut FaultReport) -> Result<(), RolloutError> {
     };
     let out = run_session(control, planner, &mut source, SessionSettings::default())
         .map_err(|e| RolloutError::Thread(e.to_string()))?;
+    let m = &out.summary.monitor;
+    if m.violations > 0 {
+        report.runs_with_violations += 1;
+        report.runs_with_violations_without_blocked_tcp += u64::from(!source.injected.contains_key("blocked_tcp"));
+    }
     for (kind, n) in source.injected {
         report.count(kind, n);
     }
     report.count("dropped_cycles", out.control.backend.dropped);
     report.count("late_cycles", out.control.backend.late);
-    let m = &out.summary.monitor;
     report.torque_violations += m.torque_violations;
     report.torque_rate_violations += m.torque_rate_violations;
     report.position_violations += m.position_violations;

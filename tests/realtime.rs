@@ -280,3 +280,23 @@ fn a_policy_on_the_realtime_runtime_sees_and_does_what_it_does_in_lock_step() {
         figures.stop
     );
 }
+
+struct Crashing;
+
+impl KeyframeSource for Crashing {
+    fn propose(&mut self, _request: &Request) -> Result<Answer, String> {
+        panic!("the policy crashed");
+    }
+}
+
+#[test]
+fn a_panicking_policy_ends_the_run_instead_of_hanging_it() {
+    let (world, _) = home();
+    // ten minutes of ticks and no watchdog: only the panic can end this run quickly
+    let mut s = settings(Pacing::WallClock, 600_000, None);
+    s.watchdog_ticks = u64::MAX;
+    let started = std::time::Instant::now();
+    let outcome = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| run(world, s, &mut Crashing)));
+    assert!(outcome.is_err(), "the policy's panic must reach the caller");
+    assert!(started.elapsed() < Duration::from_secs(60), "the run went on after the policy died");
+}

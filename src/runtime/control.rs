@@ -22,7 +22,9 @@ pub enum Pacing {
     WallClock,
     /// Ticks run as fast as the machine allows and the plan for a request made at tick `t`
     /// takes effect at tick `t + ticks` exactly, whatever the threads' timing: the asynchronous
-    /// path, reproducible bit for bit. The tick waits (costing wall-clock time only) if the
+    /// path, reproducible bit for bit as long as every answer arrives within the settings'
+    /// `stall_timeout_s` of wall-clock time (a later one ends the run as `PolicySilent`, which
+    /// depends on the machine's speed). The tick waits (costing wall-clock time only) if the
     /// plan is not there yet.
     SimulatedLatency { ticks: u64 },
 }

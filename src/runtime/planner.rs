@@ -1,5 +1,6 @@
 //! The planner thread: turns the policy's keyframes into motion plans (straight-line joint
-//! goals by IK, as the lock-step runner does) and refuses the ones the arm must not follow:
+//! goals by IK, as the lock-step runner does, but planned from the measured joint positions at
+//! the request rather than from the previous plan's last goal) and refuses the ones the arm must not follow:
 //! non-finite values, a quaternion that is not unit, a position outside the run's workspace box,
 //! no IK solution. A refusal reaches the control thread as a [`Rejection`] and the arm holds.
 use nalgebra::Isometry3;

@@ -27,6 +27,19 @@ pub trait KeyframeSource {
     }
 }
 
+/// Stops the control loop and releases the background threads when dropped.
+struct Release<'a> {
+    stop: &'a AtomicBool,
+    done: &'a AtomicBool,
+}
+
+impl Drop for Release<'_> {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        self.done.store(true, Ordering::Release);
+    }
+}
+
 /// How a real-time run is set up.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct SessionSettings {
@@ -169,7 +182,10 @@ pub fn run_session<B: RobotBackend + Send>(
             }
             (compute, backend, wake, events)
         });
-        // The policy loop, on this thread, until the control thread ends.
+        // The policy loop, on this thread, until the control thread ends. If the source panics,
+        // the guard stops the control loop and releases the other threads on the way out, so
+        // that the scope can end and pass the panic on (instead of waiting for them forever).
+        let _release = Release { stop: &stop, done };
         if rt_wanted {
             make_current_thread_background();
         }

@@ -245,3 +245,40 @@ fn run_and_collect_write_what_they_report() {
     assert!(err.contains("front, left_shoulder, right_shoulder, wrist") && !err.contains("panicked"), "{err}");
     assert!(!dir.path().join("none").exists(), "nothing is written before the inputs are checked");
 }
+
+#[test]
+fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
+    let out = common::flowram().args(["bench", "realtime", "--ticks", "1500", "--no-rt", "--json"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rt: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(rt["ticks"], 1500);
+    assert_eq!(rt["waited_on_policy_ticks"], 0);
+    assert_eq!(rt["allocations_in_tick"], 0, "the binary counts allocations in ticks: {rt}");
+    assert_eq!(rt["rt_scheduling"], false);
+    for key in ["compute_us", "wake_latency_us"] {
+        for p in ["p50", "p99", "p9999", "max"] {
+            assert!(rt[key][p].as_f64().is_some_and(|v| v > 0.0), "{key}.{p} in {rt}");
+        }
+    }
+    assert!(rt["deadline_misses"].as_u64().is_some() && rt["policy_inferences"] == 0);
+
+    let out = common::flowram().args(["bench", "faults", "--runs", "2", "--json"]).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let faults: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(faults["runs"], 2);
+    assert_eq!(faults["panics"], 0);
+    assert_eq!(faults["non_finite_torques"], 0);
+
+    for (args, expected) in [
+        (&["bench", "realtime", "--ticks", "0"][..], "--ticks"),
+        (&["bench", "faults", "--runs", "0"][..], "--runs"),
+        (&["run", "--task", "open_drawer", "--realtime", "--video", "x.gif"][..], "--video"),
+        (&["run", "--task", "open_drawer", "--latency-ms", "100"][..], "--realtime"),
+    ] {
+        let out = common::flowram().args(args).output().unwrap();
+        assert!(!out.status.success(), "{args:?} succeeded");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert!(err.contains(expected), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{args:?}: {err}");
+    }
+}

@@ -304,7 +304,7 @@ fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
         v.sort_by(f64::total_cmp);
         v
     };
-    let pct = |v: &[f64], p: f64| v[((v.len() - 1) as f64 * p).round() as usize];
+    let pct = flowram::stats::percentile_sorted;
     let total = micros(|t| t.total);
     let ik: Vec<f64> = report.keyframes.iter().map(|k| k.ik_ms).collect();
     let out = ControlReport {

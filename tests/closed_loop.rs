@@ -2,8 +2,9 @@
 //! rendered observations (replaying the expert through it succeeds and stops at success), the
 //! conversion of rendered frames to the policy's observation (identical to the dataset path the
 //! policy was trained on), and FlowRAM itself acting through the real control stack.
+mod common;
+
 use flowram::control::keyframe::Keyframe;
-use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
@@ -97,13 +98,7 @@ fn rendered_frames_become_the_same_observation_as_the_dataset_path() {
 
 #[test]
 fn flowram_acts_closed_loop_through_the_control_stack() {
-    let mut config = PolicyConfig::cpu_default().unwrap();
-    config.observation.image_size = 48;
-    config.observation.semantic_tokens = 128;
-    config.observation.geometric_tokens = 32;
-    config.observation.min_inside = 8;
-    config.model.layers = 1;
-    config.validate().unwrap();
+    let config = common::tiny_policy_config();
     let text = TextEncoder::load_installed().unwrap();
     let policy = Policy::random(&config, text).unwrap();
     let options = SamplingOptions { steps: 2, samples: 1, drs: true, seed: 5 };

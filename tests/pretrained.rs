@@ -80,6 +80,23 @@ const SHIPPED_PREDICTIONS: [(&str, [f32; 3], f64); 5] = [
     ("stack_blocks", STACK_BLOCKS, 369.7),
 ];
 
+/// Each prediction is within [`REPRODUCE_MM`] of the one recorded when the checkpoint shipped,
+/// and the expert is as far from it as it was then.
+fn assert_reproduces(predictions: &[(&str, KeyframePose, KeyframePose)], recorded: &[[f32; 3]], expert_mm: &[f64]) {
+    assert_eq!(predictions.len(), recorded.len());
+    for (((task, predicted, expert), position), mm) in predictions.iter().zip(recorded).zip(expert_mm) {
+        let recorded = KeyframePose { position: *position, ..*predicted };
+        let moved = distance_mm(predicted, &recorded);
+        assert!(
+            moved < REPRODUCE_MM,
+            "{task}: predicted {:?}, shipped {:?} ({moved:.1} mm apart)",
+            predicted.position,
+            recorded.position
+        );
+        assert!((distance_mm(predicted, expert) - mm).abs() < REPRODUCE_MM, "{task}: the expert moved");
+    }
+}
+
 /// How far a prediction may move from the recorded one: float sums differ between the AVX-512
 /// and AVX2 kernels, which can flip a geometric token at the edge of r(t). A broken checkpoint or
 /// inference path moves it by centimetres.
@@ -104,19 +121,11 @@ fn first_keyframes(checkpoint: &str, task_names: &[&'static str]) -> Vec<(&'stat
 
 #[test]
 fn the_shipped_checkpoint_predicts_what_it_predicted_when_shipped() {
-    for ((task, predicted, expert), (name, recorded, recorded_mm)) in
-        shipped_first_keyframes().iter().zip(SHIPPED_PREDICTIONS)
-    {
-        assert_eq!(*task, name);
-        let recorded = KeyframePose { position: recorded, ..*predicted };
-        let moved = distance_mm(predicted, &recorded);
-        assert!(
-            moved < REPRODUCE_MM,
-            "{task}: predicted {:?}, shipped {:?} ({moved:.1} mm apart)",
-            predicted.position,
-            recorded.position
-        );
-        assert!((distance_mm(predicted, expert) - recorded_mm).abs() < REPRODUCE_MM, "{task}: the expert moved");
+    let predictions = shipped_first_keyframes();
+    let names: Vec<&str> = predictions.iter().map(|p| p.0).collect();
+    assert_eq!(names, SHIPPED_PREDICTIONS.map(|p| p.0));
+    assert_reproduces(&predictions, &SHIPPED_PREDICTIONS.map(|p| p.1), &SHIPPED_PREDICTIONS.map(|p| p.2));
+    for (task, predicted, expert) in &predictions {
         // Where the checkpoint is good, it stays good: open_drawer within the 2 cm.
         if *task == "open_drawer" {
             assert!(
@@ -197,20 +206,7 @@ fn the_default_ten_task_checkpoint_predicts_what_it_predicted_when_shipped() {
     let default = flowram::deps::models_dir().join("policy/pretrained/ten-tasks");
     assert!(default.join("ema.safetensors").is_file(), "the default checkpoint is missing");
     let predictions = first_keyframes("ten-tasks", &TEN_TASKS);
-    for (i, (task, predicted, expert)) in predictions.iter().enumerate() {
-        let recorded = KeyframePose { position: TEN_TASK_PREDICTIONS[i], ..*predicted };
-        let moved = distance_mm(predicted, &recorded);
-        assert!(
-            moved < REPRODUCE_MM,
-            "{task}: predicted {:?}, shipped {:?} ({moved:.1} mm apart)",
-            predicted.position,
-            recorded.position
-        );
-        assert!(
-            (distance_mm(predicted, expert) - TEN_TASK_EXPERT_MM[i]).abs() < REPRODUCE_MM,
-            "{task}: the expert moved"
-        );
-    }
+    assert_reproduces(&predictions, &TEN_TASK_PREDICTIONS, &TEN_TASK_EXPERT_MM);
     // where it is good it stays good: the drawers (open_drawer, put_item_in_drawer) within 2 cm
     for (task, predicted, expert) in &predictions {
         if task.contains("drawer") {

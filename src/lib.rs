@@ -4,6 +4,7 @@ pub mod control;
 pub mod data;
 pub mod deps;
 pub mod files;
+pub mod franka;
 pub mod policy;
 pub mod robot;
 pub mod rollout;

@@ -29,6 +29,7 @@ pub enum Quantity {
     Acceleration,
     Torque,
     TorqueRate,
+    Force,
     /// Joint damping (torque per joint velocity).
     JointDamping,
     Time,
@@ -56,6 +57,7 @@ impl Quantity {
             Quantity::Torque => &[("Nm", 1.0), ("N*m", 1.0)],
             Quantity::JointDamping => &[("Nm*s/rad", 1.0)],
             Quantity::TorqueRate => &[("Nm/s", 1.0), ("N*m/s", 1.0)],
+            Quantity::Force => &[("N", 1.0)],
             Quantity::Time => &[("s", 1.0), ("ms", 0.001), ("us", 1e-6)],
             Quantity::PerSecondSquared => &[("1/s^2", 1.0)],
             Quantity::PerSecond => &[("1/s", 1.0)],

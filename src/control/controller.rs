@@ -57,7 +57,7 @@ impl ArmController {
         let trajectory = JointTrajectory::new(&motion, dt, &state.q);
         let friction = JointFriction::of(kinematics.description());
         let mut osc = Osc::new(config, limits, friction, dt)?;
-        osc.reset(&state.tau);
+        osc.reset(&state.tau_commanded);
         let tcp = kinematics.tcp(&state.q).unwrap_or_else(|_| nalgebra::Isometry3::identity());
         Ok(Self {
             kinematics,

@@ -148,14 +148,18 @@ impl Runner {
         out
     }
 
-    /// Runs all keyframes; an unreachable keyframe is reported and skipped.
+    /// Runs all keyframes in one continuous control session; an unreachable keyframe is
+    /// reported and skipped. Every keyframe is planned first (each seeded from the previous
+    /// goal), so the torque stream never pauses between keyframes: on a robot that aborts after
+    /// a few missed cycles, one session must carry the whole run.
     pub fn run<B: RobotBackend>(&mut self, backend: &mut B, keyframes: &[Keyframe]) -> Result<RunReport, BackendError> {
         let start_ticks = self.monitor_ticks();
         let t_start = backend.read_state().time;
-        let mut reports = Vec::with_capacity(keyframes.len());
+        let mut reports: Vec<Option<KeyframeReport>> = vec![None; keyframes.len()];
+        // (keyframe index, plan, IK time in ms)
+        let mut plans: Vec<(usize, MotionPlan, f64)> = Vec::with_capacity(keyframes.len());
         let mut seed = backend.read_state().q;
-        for keyframe in keyframes {
-            let t0 = backend.read_state().time;
+        for (i, keyframe) in keyframes.iter().enumerate() {
             let ik_start = std::time::Instant::now();
             let from = self.controller.kinematics_mut().tcp(&seed).unwrap_or_else(|_| Isometry3::identity());
             let goal = target_pose(keyframe.position, keyframe.quat_wxyz).and_then(|target| {
@@ -163,37 +167,61 @@ impl Runner {
                 Ok((target, goals))
             });
             let ik_ms = ik_start.elapsed().as_secs_f64() * 1e3;
-            let (target, goals) = match goal {
-                Ok(g) => g,
-                Err(e) => {
-                    reports.push(KeyframeReport::failed(e.to_string(), ik_ms));
-                    continue;
+            let planned = goal.map_err(|e| e.to_string()).and_then(|(target, goals)| {
+                let plan = MotionPlan::new(target, &goals, keyframe.gripper_open).map_err(|e| e.to_string())?;
+                Ok((plan, *goals.last().unwrap_or(&seed)))
+            });
+            match planned {
+                Ok((plan, last)) => {
+                    seed = last;
+                    plans.push((i, plan, ik_ms));
                 }
-            };
-            seed = *goals.last().unwrap_or(&seed);
-            let plan = match MotionPlan::new(target, &goals, keyframe.gripper_open) {
-                Ok(plan) => plan,
-                Err(e) => {
-                    reports.push(KeyframeReport::failed(e.to_string(), ik_ms));
-                    continue;
+                Err(e) => reports[i] = Some(KeyframeReport::failed(e, ik_ms)),
+            }
+        }
+        // (keyframe index, outcome, start and end time of its execution)
+        let mut done: Vec<(usize, ExecutionOutcome, f64, f64)> = Vec::with_capacity(plans.len());
+        if !plans.is_empty() {
+            let period = backend.period();
+            let mut next = 0;
+            let mut current: Option<(usize, Execution, f64)> = None;
+            backend.control(|state| {
+                let (i, execution, t0) = current.get_or_insert_with(|| {
+                    let (i, plan, _) = plans[next];
+                    next += 1;
+                    (i, Execution::start(plan, &self.gripper, self.gripper_timeout), state.time)
+                });
+                execution.before_tick(&mut self.controller, &mut self.gripper, state);
+                let command = self.tick(state);
+                if !execution.after_tick(&self.controller, &mut self.gripper, state) {
+                    return Cycle::Continue(command);
                 }
-            };
-            let outcome = self.execute(backend, plan)?;
+                // The command is applied for one more period: the execution ends then.
+                done.push((*i, execution.outcome(), *t0, state.time + period));
+                current = None;
+                if next == plans.len() { Cycle::Finish(command) } else { Cycle::Continue(command) }
+            })?;
+        }
+        for (i, outcome, t0, t1) in done {
             let (ep, er) = (outcome.position_error(), outcome.rotation_error());
             let c = self.controller.osc().config();
             let reached = ep <= c.reached_position && er <= c.reached_orientation;
-            let gripper = outcome.gripper;
-            reports.push(KeyframeReport {
+            let ik_ms = plans.iter().find(|p| p.0 == i).map_or(0.0, |p| p.2);
+            reports[i] = Some(KeyframeReport {
                 reached,
                 pos_err_mm: ep * 1e3,
                 rot_err_deg: er.to_degrees(),
-                time_s: backend.read_state().time - t0,
+                time_s: t1 - t0,
                 error: (!reached)
                     .then(|| format!("settled {:.2} mm / {:.3} deg from the keyframe", ep * 1e3, er.to_degrees())),
-                gripper: gripper.map(|g| describe(&g)),
+                gripper: outcome.gripper.map(|g| describe(&g)),
                 ik_ms,
             });
         }
+        let reports = reports
+            .into_iter()
+            .map(|r| r.unwrap_or_else(|| KeyframeReport::failed("the control session ended before it".into(), 0.0)))
+            .collect();
         let m = &self.monitor;
         Ok(RunReport {
             keyframes: reports,
@@ -240,25 +268,6 @@ impl Runner {
             });
         }
         command
-    }
-
-    /// Executes one planned keyframe (motion, settle, gripper) in lock-step on the backend.
-    fn execute<B: RobotBackend>(
-        &mut self,
-        backend: &mut B,
-        plan: MotionPlan,
-    ) -> Result<ExecutionOutcome, BackendError> {
-        let mut execution = Execution::start(plan, &self.gripper, self.gripper_timeout);
-        backend.control(|state| {
-            execution.before_tick(&mut self.controller, &mut self.gripper, state);
-            let command = self.tick(state);
-            if execution.after_tick(&self.controller, &mut self.gripper, state) {
-                Cycle::Finish(command)
-            } else {
-                Cycle::Continue(command)
-            }
-        })?;
-        Ok(execution.outcome())
     }
 }
 

@@ -216,6 +216,32 @@ pub fn expert_plan(
     Ok((task.expert(world, &state)?, fingerprint))
 }
 
+/// The expert's plans in one scene toward the task's [`Task::target_alternatives`].
+#[derive(Debug, Clone)]
+pub struct AlternativePlans {
+    pub own: Vec<Keyframe>,
+    /// To objects the instruction also accepts.
+    pub right: Vec<Vec<Keyframe>>,
+    /// To objects it does not.
+    pub wrong: Vec<Vec<Keyframe>>,
+}
+
+/// [`AlternativePlans`] in the scene of `variation` at `seed`, planned from the settled start,
+/// not executed.
+pub fn expert_alternative_plans(
+    task: &dyn Task,
+    world: &mut World,
+    variation: usize,
+    seed: u64,
+) -> Result<AlternativePlans, RolloutError> {
+    let (state, _, _) = begin(task, world, variation, seed)?;
+    let alternatives = task.target_alternatives(&state);
+    let plan = |s: &TaskState| task.expert(world, s);
+    let right = alternatives.right.iter().map(plan).collect::<Result<_, _>>()?;
+    let wrong = alternatives.wrong.iter().map(plan).collect::<Result<_, _>>()?;
+    Ok(AlternativePlans { own: task.expert(world, &state)?, right, wrong })
+}
+
 /// Resets the world and the task (seeded), builds the control stack and lets the objects
 /// settle while the controller holds the arm. Returns the task state, the runner and the start
 /// time.

@@ -11,7 +11,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::RolloutError;
-use super::episode::{Actor, Observer, camera_rig, expert_plan, run_episode};
+use super::episode::{Actor, Observer, camera_rig, expert_alternative_plans, expert_plan, run_episode};
 use super::learned::FlowRamActor;
 use super::shard::{Shard, check_shard_set, source_revision};
 use crate::control::keyframe::Keyframe;
@@ -469,20 +469,23 @@ fn other_instructions(episode: &Episode, n: usize) -> Vec<String> {
 /// Variations' keyframes this far apart (m) are different targets.
 const DISTINCT_TARGETS_M: f64 = 0.03;
 
-/// A keyframe that the instruction decides: its index, the instructed variation's expert
-/// position there and the other variations' positions at least [`DISTINCT_TARGETS_M`] from it
-/// (world frame, m).
+/// A keyframe that the instruction decides: its index, the positions there of the instructed
+/// variation's expert and of experts sent to other objects the instruction also accepts (stack
+/// any block of the named colour), and the positions of experts sent elsewhere at least
+/// [`DISTINCT_TARGETS_M`] from the own expert's (world frame, m).
 struct InstructedKeyframe {
     k: usize,
-    own: [f64; 3],
+    own: Vec<[f64; 3]>,
     others: Vec<[f64; 3]>,
 }
 
 /// The first keyframe of `episode` that its instruction decides: the first index at which the
 /// expert of another variation of the task, in the same scene (same seed, and a reset that
 /// leaves every colour and placement as the episode's own), goes at least [`DISTINCT_TARGETS_M`]
-/// from where the episode's own expert goes. `None` for tasks this build does not know, whose
-/// variations never part, or whose variations all change the scene (colour tasks).
+/// from where the episode's own expert goes. In colour tasks, whose variations also paint the
+/// objects (another colour's scene is another observation), the other experts are the same
+/// scene's experts sent to the objects of other colours ([`tasks::Task::target_alternatives`]).
+/// `None` for tasks this build does not know or whose alternatives never part.
 fn instructed_keyframe(
     episode: &Episode,
     world: &mut Option<crate::sim::World>,
@@ -496,22 +499,40 @@ fn instructed_keyframe(
         .map(|v| expert_plan(task.as_ref(), world, v, episode.seed))
         .collect::<Result<Vec<_>, _>>()?;
     let (own, scene) = &plans[episode.variation];
-    // Only variations that lay out the very same scene: in colour tasks the variation also
-    // paints the objects, and another colour's scene is another observation.
     let same_scene: Vec<&Vec<Keyframe>> =
         plans.iter().filter(|(_, fingerprint)| fingerprint == scene).map(|(plan, _)| plan).collect();
-    for (k, mine) in own.iter().enumerate().take(episode.keyframes()) {
-        let others: Vec<[f64; 3]> = same_scene
+    if let Some(found) = first_parting(own, &[], &same_scene, episode.keyframes()) {
+        return Ok(Some(found));
+    }
+    let plans = expert_alternative_plans(task.as_ref(), world, episode.variation, episode.seed)?;
+    let right: Vec<&Vec<Keyframe>> = plans.right.iter().collect();
+    let wrong: Vec<&Vec<Keyframe>> = plans.wrong.iter().collect();
+    Ok(first_parting(&plans.own, &right, &wrong, episode.keyframes()))
+}
+
+/// The first of `keyframes` indices at which a plan of `others` goes at least
+/// [`DISTINCT_TARGETS_M`] from `own` (and from every plan of `also_right`).
+fn first_parting(
+    own: &[Keyframe],
+    also_right: &[&Vec<Keyframe>],
+    others: &[&Vec<Keyframe>],
+    keyframes: usize,
+) -> Option<InstructedKeyframe> {
+    for (k, mine) in own.iter().enumerate().take(keyframes) {
+        let right: Vec<[f64; 3]> = std::iter::once(mine.position)
+            .chain(also_right.iter().filter_map(|p| p.get(k)).map(|r| r.position))
+            .collect();
+        let parted: Vec<[f64; 3]> = others
             .iter()
             .filter_map(|plan| plan.get(k))
             .map(|other| other.position)
-            .filter(|p| distance(p, &mine.position) >= DISTINCT_TARGETS_M)
+            .filter(|p| right.iter().all(|r| distance(p, r) >= DISTINCT_TARGETS_M))
             .collect();
-        if !others.is_empty() {
-            return Ok(Some(InstructedKeyframe { k, own: mine.position, others }));
+        if !parted.is_empty() {
+            return Some(InstructedKeyframe { k, own: right, others: parted });
         }
     }
-    Ok(None)
+    None
 }
 
 fn distance(a: &[f64; 3], b: &[f64; 3]) -> f64 {
@@ -561,7 +582,8 @@ pub fn heldout_errors(
                 if let Some(at) = instructed.as_ref().filter(|at| at.k == k) {
                     let p = predicted.position.map(f64::from);
                     let nearest_other = at.others.iter().map(|o| distance(&p, o)).fold(f64::INFINITY, f64::min);
-                    choices.push((ti, distance(&p, &at.own) < nearest_other));
+                    let nearest_own = at.own.iter().map(|o| distance(&p, o)).fold(f64::INFINITY, f64::min);
+                    choices.push((ti, nearest_own < nearest_other));
                 }
                 if k == 0 {
                     for instruction in other_instructions(e, SWAPS_PER_EPISODE) {

@@ -121,3 +121,42 @@ pub fn make_current_thread_background() {
         libc::setpriority(libc::PRIO_PROCESS, libc::gettid() as libc::id_t, 10);
     }
 }
+
+/// The calling thread's scheduling policy, restored when dropped: for code that must leave a
+/// thread as it found it (a library that raises the caller's priority, a control session that
+/// raises it for its own duration).
+#[derive(Debug)]
+pub struct SchedulingRestore {
+    policy: i32,
+    priority: i32,
+}
+
+impl SchedulingRestore {
+    /// Saves the calling thread's policy and priority.
+    pub fn save() -> Self {
+        let mut policy = libc::SCHED_OTHER;
+        let mut param = libc::sched_param { sched_priority: 0 };
+        // SAFETY: valid thread handle (self) and out-pointers; on failure the defaults stand.
+        unsafe { libc::pthread_getschedparam(libc::pthread_self(), &raw mut policy, &raw mut param) };
+        Self { policy, priority: param.sched_priority }
+    }
+
+    /// Saves the calling thread's scheduling, then gives it SCHED_FIFO at the control thread's
+    /// priority where permitted. Returns whether FIFO was granted.
+    pub fn raise_to_fifo() -> (Self, bool) {
+        let saved = Self::save();
+        let param = libc::sched_param { sched_priority: FIFO_PRIORITY };
+        // SAFETY: valid thread handle (self) and parameter.
+        let granted =
+            unsafe { libc::pthread_setschedparam(libc::pthread_self(), libc::SCHED_FIFO, &raw const param) } == 0;
+        (saved, granted)
+    }
+}
+
+impl Drop for SchedulingRestore {
+    fn drop(&mut self) {
+        let param = libc::sched_param { sched_priority: self.priority };
+        // SAFETY: valid thread handle (self) and parameter; a refusal leaves the thread as is.
+        unsafe { libc::pthread_setschedparam(libc::pthread_self(), self.policy, &raw const param) };
+    }
+}

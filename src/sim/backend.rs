@@ -1,6 +1,6 @@
 //! The MuJoCo world as a torque-controlled robot backend: each cycle applies the torques and
 //! the gripper command, steps the physics once (1 ms) and reads the arm back.
-use crate::control::backend::{BackendError, Command, RobotBackend, RobotState};
+use crate::control::backend::{BackendError, Command, RobotBackend, RobotMode, RobotState};
 
 use super::{SimError, World};
 
@@ -19,6 +19,12 @@ impl RobotBackend for World {
             tau: s.tau,
             gripper_width: s.gripper_width,
             gripper_speed: v1 + v2,
+            // MuJoCo applies every command in time and exactly (the motors' ranges are the
+            // rated torques, which the controller stays inside).
+            tau_commanded: s.tau,
+            command_success_rate: 1.0,
+            mode: RobotMode::Move,
+            errors: 0,
         }
     }
 

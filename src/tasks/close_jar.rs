@@ -14,7 +14,7 @@ use rand::seq::SliceRandom;
 use super::colors::{self, COLORS};
 use super::grasp::{clearest_yaw, pick_and_place, top_down};
 use super::layout::scatter;
-use super::{Task, TaskError, TaskState};
+use super::{TargetAlternatives, Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
@@ -60,6 +60,12 @@ impl Task for CloseJar {
         let upright = (lid.rotation * Vector3::z()).z > 10f64.to_radians().cos();
         let seated = (d.z - (JAR_HEIGHT + LID_HALF)).abs() < 0.006;
         upright && seated && d.xy().norm() < 0.012
+    }
+
+    /// Wrong: the other jar.
+    fn target_alternatives(&self, state: &TaskState) -> TargetAlternatives {
+        let wrong = ["jar_0", "jar_1"].into_iter().map(String::from).filter(|n| !state.targets.contains(n));
+        TargetAlternatives { right: Vec::new(), wrong: TargetAlternatives::targeting(wrong) }
     }
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {

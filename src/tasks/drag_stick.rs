@@ -21,7 +21,7 @@ use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
 use super::grasp::{keyframe, symmetric_yaw, top_down};
-use super::{Task, TaskError, TaskState};
+use super::{TargetAlternatives, Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
@@ -75,6 +75,12 @@ impl Task for DragStick {
         };
         let d = cube.translation.vector - target.translation.vector;
         d.x.abs() < TARGET_HALF && d.y.abs() < TARGET_HALF && (cube.translation.z - TABLE_Z - CUBE_HALF).abs() < 0.01
+    }
+
+    /// Wrong: the other target square.
+    fn target_alternatives(&self, state: &TaskState) -> TargetAlternatives {
+        let wrong = (0..TARGET_DISTANCES.len()).map(|i| format!("target_{i}")).filter(|n| !state.targets.contains(n));
+        TargetAlternatives { right: Vec::new(), wrong: TargetAlternatives::targeting(wrong) }
     }
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {

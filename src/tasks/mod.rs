@@ -64,6 +64,28 @@ pub trait Task: Send + Sync {
     fn model_files(&self) -> Vec<PathBuf> {
         vec![model_file(self.name())]
     }
+
+    /// For tasks whose instruction picks objects by colour, where another variation paints
+    /// another scene: the same scene's states with other objects as targets, for the target
+    /// probe (the expert of a `right` state goes to an object the instruction also accepts, of
+    /// a `wrong` state to one it does not). Default: none.
+    fn target_alternatives(&self, _state: &TaskState) -> TargetAlternatives {
+        TargetAlternatives::default()
+    }
+}
+
+/// See [`Task::target_alternatives`].
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct TargetAlternatives {
+    pub right: Vec<TaskState>,
+    pub wrong: Vec<TaskState>,
+}
+
+impl TargetAlternatives {
+    /// One single-target state per named object.
+    pub(crate) fn targeting(names: impl IntoIterator<Item = String>) -> Vec<TaskState> {
+        names.into_iter().map(|name| TaskState { targets: vec![name], events: Vec::new() }).collect()
+    }
 }
 
 /// Every task, in Table A's order.

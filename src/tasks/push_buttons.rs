@@ -15,7 +15,7 @@ use rand::seq::SliceRandom;
 use super::colors::{self, COLORS};
 use super::grasp::{keyframe, top_down};
 use super::layout::{apart, scatter};
-use super::{Task, TaskError, TaskState};
+use super::{TargetAlternatives, Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
@@ -72,6 +72,13 @@ impl Task for PushButtons {
         let names =
             targets.iter().map(|c| format!("button_{}", palette.iter().position(|p| p == c).unwrap_or(0))).collect();
         Ok(TaskState { targets: names, events: Vec::new() })
+    }
+
+    /// Wrong: every button but the first to push.
+    fn target_alternatives(&self, state: &TaskState) -> TargetAlternatives {
+        let first = state.targets.first();
+        let wrong = (0..BUTTONS).map(|i| format!("button_{i}")).filter(|n| Some(n) != first);
+        TargetAlternatives { right: Vec::new(), wrong: TargetAlternatives::targeting(wrong) }
     }
 
     fn observe(&self, world: &World, state: &mut TaskState) {

@@ -16,7 +16,7 @@ use rand::seq::SliceRandom;
 use super::colors::{self, COLORS};
 use super::grasp::{clearest_yaw, pick_and_place, symmetric_yaw, top_down};
 use super::layout::{apart, scatter};
-use super::{Task, TaskError, TaskState};
+use super::{TargetAlternatives, Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
 use crate::sim::World;
 
@@ -94,6 +94,18 @@ impl Task for StackBlocks {
         let count = state.targets.len();
         // Levels 0..count all occupied by target-colour blocks.
         levels.len() >= count && levels.iter().take(count).enumerate().all(|(i, &l)| l == i)
+    }
+
+    /// Right: the other blocks of the named colour (any may go first); wrong: the two blocks of
+    /// other colours.
+    fn target_alternatives(&self, state: &TaskState) -> TargetAlternatives {
+        let first = state.targets.first();
+        let block = |i: usize| format!("block_{i}");
+        let right = (0..TARGET_BLOCKS).map(block).filter(|n| Some(n) != first);
+        TargetAlternatives {
+            right: TargetAlternatives::targeting(right),
+            wrong: TargetAlternatives::targeting((TARGET_BLOCKS..BLOCKS).map(block)),
+        }
     }
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {

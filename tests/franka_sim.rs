@@ -1,0 +1,152 @@
+//! The Franka backend against a real peer: `flowram track --backend franka` drives franka-sim
+//! (PyPI franka-sim 1.1.7, a MuJoCo server speaking the Franka network protocol as an FR3;
+//! installed by scripts/setup.sh into .deps/franka-sim) over 127.0.0.1, with the server's
+//! communication-constraint and motion-limit enforcement on. The server runs our installed
+//! Panda MJCF (FR3_MJCF), so nothing is downloaded.
+//!
+//! Needs `--features franka` (`.ci/run` runs it).
+#![cfg(feature = "franka")]
+
+mod common;
+
+use std::io::Read;
+use std::net::TcpListener;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Stdio};
+use std::time::{Duration, Instant};
+
+use flowram::deps::Deps;
+use flowram::robot::{JointVector, Kinematics};
+
+/// The server's initial arm configuration (franka_sim/mujoco_franka_sim.py, ARM_INITIAL_Q).
+const SERVER_START_Q: [f64; 7] = [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785];
+
+/// franka-sim on a free port; SIGINT (its clean shutdown) and then SIGKILL when dropped.
+struct Server {
+    child: Child,
+    log: PathBuf,
+    port: u16,
+}
+
+impl Server {
+    fn start(dir: &Path) -> Server {
+        let deps = Deps::locate();
+        let exe = deps.root().join("franka-sim/bin/run-franka-sim-server");
+        assert!(exe.is_file(), "{} is missing: run scripts/setup.sh", exe.display());
+        let port = TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+        let log = dir.join("server.log");
+        let child = Command::new(exe)
+            .args(["--port", &port.to_string(), "--enforce-comm-constraints", "--enforce-motion-limits"])
+            .env("FR3_MJCF", deps.panda_arm_mjcf().unwrap())
+            .env("FRANKA_HAND_MJCF", deps.panda_hand_mjcf().unwrap())
+            .env("PYTHONUNBUFFERED", "1")
+            .stdout(std::fs::File::create(&log).unwrap())
+            .stderr(Stdio::from(std::fs::File::options().append(true).open(&log).unwrap()))
+            .spawn()
+            .expect("start franka-sim");
+        let server = Server { child, log, port };
+        let deadline = Instant::now() + Duration::from_secs(90);
+        while !server.log().contains("Server ready for new client connection") {
+            assert!(Instant::now() < deadline, "franka-sim did not come up in 90 s:\n{}", server.log());
+            std::thread::sleep(Duration::from_millis(200));
+        }
+        server
+    }
+
+    fn log(&self) -> String {
+        std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+}
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        // SAFETY: signalling our own child process.
+        unsafe { libc::kill(self.child.id() as i32, libc::SIGINT) };
+        let deadline = Instant::now() + Duration::from_secs(10);
+        while Instant::now() < deadline {
+            if let Ok(Some(_)) = self.child.try_wait() {
+                return;
+            }
+            std::thread::sleep(Duration::from_millis(100));
+        }
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// Runs `cmd` with a time-out; (exit success, stdout, stderr).
+fn run_with_timeout(mut cmd: Command, timeout: Duration) -> (bool, String, String) {
+    let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    let (mut out, mut err) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
+    let reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        out.read_to_string(&mut s).unwrap();
+        s
+    });
+    let err_reader = std::thread::spawn(move || {
+        let mut s = String::new();
+        err.read_to_string(&mut s).unwrap();
+        s
+    });
+    let deadline = Instant::now() + timeout;
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if Instant::now() > deadline {
+            let _ = child.kill();
+            panic!("flowram track did not finish in {timeout:?}");
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    };
+    (status.success(), reader.join().unwrap(), err_reader.join().unwrap())
+}
+
+#[test]
+fn track_on_franka_sim_reaches_keyframes_within_the_robots_limits() {
+    let dir = tempfile::tempdir().unwrap();
+    // Keyframes around the server's start pose (robot base frame): 8 cm forward and down with
+    // the fingers closing, 10 cm sideways, then back up opening them.
+    let world = flowram::sim::World::load_named("default").unwrap();
+    let mut kinematics = Kinematics::new(&world.arm_description().unwrap()).unwrap();
+    let start = kinematics.tcp(&JointVector::from_column_slice(&SERVER_START_Q)).unwrap();
+    let quat = start.rotation.quaternion();
+    let p = start.translation.vector;
+    let keyframe = |dx: f64, dy: f64, dz: f64, open: bool| serde_json::json!({"position": [p.x + dx, p.y + dy, p.z + dz], "quat_wxyz": [quat.w, quat.i, quat.j, quat.k], "gripper_open": open});
+    let keyframes = serde_json::json!({"keyframes": [
+        keyframe(0.08, 0.0, -0.08, false),
+        keyframe(0.08, 0.10, -0.08, false),
+        keyframe(0.0, 0.0, 0.0, true),
+    ]});
+    let file = dir.path().join("keyframes.json");
+    std::fs::write(&file, keyframes.to_string()).unwrap();
+
+    let server = Server::start(dir.path());
+    let mut track = common::flowram();
+    track.args(["track", "--backend", "franka", "--robot", "fr3", "--json", "--keyframes"]).arg(&file);
+    track.args(["--robot-ip", &format!("127.0.0.1:{}", server.port)]);
+    let (ok, stdout, stderr) = run_with_timeout(track, Duration::from_secs(120));
+    let server_log = server.log();
+    drop(server);
+    assert!(ok, "track failed:\n{stderr}\nserver:\n{server_log}");
+    let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    eprintln!("{report:#}");
+
+    for (i, k) in report["keyframes"].as_array().unwrap().iter().enumerate() {
+        assert!(k["reached"].as_bool().unwrap(), "keyframe {i} not reached: {k}");
+        assert!(k["pos_err_mm"].as_f64().unwrap() < 2.0, "keyframe {i}: {k}");
+    }
+    assert_eq!(report["limit_violations"], 0, "{report}");
+    let franka = &report["franka"];
+    // the torque rate on the server's side: consecutive torques it received (its echo is
+    // float32: 1e-4 Nm of rounding at these torques)
+    let step = franka["max_received_torque_step"].as_f64().unwrap();
+    assert!(step <= 1.0 + 1e-4, "the robot received a torque step of {step} Nm in 1 ms");
+    assert!(franka["cycles"].as_u64().unwrap() > 1000, "{franka}");
+    // the hand was told to close and to open again
+    assert!(franka["gripper_commands"].as_u64().unwrap() >= 2, "{franka}");
+    // no abort (the run would have failed) and nothing the server flagged
+    for bad in ["communication_constraints_violation", "Reflex", "limits_violation", "discontinuity"] {
+        assert!(!server_log.contains(bad), "the server logged `{bad}`:\n{server_log}");
+    }
+}

@@ -74,9 +74,11 @@ impl Drop for Server {
     }
 }
 
-/// Runs `cmd` with a time-out; (exit success, stdout, stderr).
-fn run_with_timeout(mut cmd: Command, timeout: Duration) -> (bool, String, String) {
+/// Runs `cmd` with a time-out, calling `meanwhile` with its pid once started; (exit success,
+/// stdout, stderr).
+fn run_with_timeout(mut cmd: Command, timeout: Duration, meanwhile: impl FnOnce(u32)) -> (bool, String, String) {
     let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    meanwhile(child.id());
     let (mut out, mut err) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
     let reader = std::thread::spawn(move || {
         let mut s = String::new();
@@ -102,11 +104,9 @@ fn run_with_timeout(mut cmd: Command, timeout: Duration) -> (bool, String, Strin
     (status.success(), reader.join().unwrap(), err_reader.join().unwrap())
 }
 
-#[test]
-fn track_on_franka_sim_reaches_keyframes_within_the_robots_limits() {
-    let dir = tempfile::tempdir().unwrap();
-    // Keyframes around the server's start pose (robot base frame): 8 cm forward and down with
-    // the fingers closing, 10 cm sideways, then back up opening them.
+/// Keyframes around the server's start pose (robot base frame): 8 cm forward and down with the
+/// fingers closing, 10 cm sideways, then back up opening them; written to `dir`.
+fn keyframes_file(dir: &Path) -> PathBuf {
     let world = flowram::sim::World::load_named("default").unwrap();
     let mut kinematics = Kinematics::new(&world.arm_description().unwrap()).unwrap();
     let start = kinematics.tcp(&JointVector::from_column_slice(&SERVER_START_Q)).unwrap();
@@ -118,16 +118,33 @@ fn track_on_franka_sim_reaches_keyframes_within_the_robots_limits() {
         keyframe(0.08, 0.10, -0.08, false),
         keyframe(0.0, 0.0, 0.0, true),
     ]});
-    let file = dir.path().join("keyframes.json");
+    let file = dir.join("keyframes.json");
     std::fs::write(&file, keyframes.to_string()).unwrap();
+    file
+}
 
-    let server = Server::start(dir.path());
+fn track(server: &Server, keyframes: &Path) -> Command {
     let mut track = common::flowram();
-    track.args(["track", "--backend", "franka", "--robot", "fr3", "--json", "--keyframes"]).arg(&file);
+    track.args(["track", "--backend", "franka", "--robot", "fr3", "--json", "--keyframes"]).arg(keyframes);
     track.args(["--robot-ip", &format!("127.0.0.1:{}", server.port)]);
-    let (ok, stdout, stderr) = run_with_timeout(track, Duration::from_secs(120));
+    track
+}
+
+/// One server for both scenarios (its hand service always takes port 1338, so two servers
+/// cannot run at once): a clean run, then a run that stops answering.
+#[test]
+fn track_on_franka_sim() {
+    let dir = tempfile::tempdir().unwrap();
+    let file = keyframes_file(dir.path());
+    let server = Server::start(dir.path());
+    clean_run_reaches_keyframes_within_the_robots_limits(&server, &file);
+    a_stalled_client_is_aborted_recovered_and_the_robot_runs_again(&server, &file);
+}
+
+fn clean_run_reaches_keyframes_within_the_robots_limits(server: &Server, file: &Path) {
+    let track = track(server, file);
+    let (ok, stdout, stderr) = run_with_timeout(track, Duration::from_secs(120), |_| {});
     let server_log = server.log();
-    drop(server);
     assert!(ok, "track failed:\n{stderr}\nserver:\n{server_log}");
     let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
     eprintln!("{report:#}");
@@ -149,4 +166,25 @@ fn track_on_franka_sim_reaches_keyframes_within_the_robots_limits() {
     for bad in ["communication_constraints_violation", "Reflex", "limits_violation", "discontinuity"] {
         assert!(!server_log.contains(bad), "the server logged `{bad}`:\n{server_log}");
     }
+}
+
+/// The client stops answering for 200 ms mid-motion (SIGSTOP): the server aborts the motion
+/// with communication_constraints_violation after 20 lost cycles; track reports it as a
+/// communication failure, runs automatic error recovery, and a new run then succeeds.
+fn a_stalled_client_is_aborted_recovered_and_the_robot_runs_again(server: &Server, file: &Path) {
+    let (ok, _, stderr) = run_with_timeout(track(server, file), Duration::from_secs(120), |pid| {
+        // well into the first motion (the client connects within a second)
+        std::thread::sleep(Duration::from_millis(2500));
+        // SAFETY: signalling our own child process.
+        unsafe { libc::kill(pid as i32, libc::SIGSTOP) };
+        std::thread::sleep(Duration::from_millis(200));
+        unsafe { libc::kill(pid as i32, libc::SIGCONT) };
+    });
+    assert!(!ok, "a client stalled for 200 ms was not stopped:\n{stderr}\nserver:\n{}", server.log());
+    assert!(stderr.contains("communication with the robot failed"), "{stderr}");
+    assert!(stderr.contains("recovered (automatic error recovery)"), "{stderr}");
+    let (ok, stdout, stderr) = run_with_timeout(track(server, file), Duration::from_secs(120), |_| {});
+    assert!(ok, "the run after recovery failed:\n{stderr}\nserver:\n{}", server.log());
+    let report: serde_json::Value = serde_json::from_str(&stdout).unwrap();
+    assert!(report["keyframes"].as_array().unwrap().iter().all(|k| k["reached"] == true), "{report}");
 }

@@ -163,7 +163,7 @@ fn run_on_franka(
     log: bool,
     log_seconds: f64,
 ) -> anyhow::Result<(RunReport, Runner, FrankaFigures)> {
-    use flowram::control::backend::RobotBackend;
+    use flowram::control::backend::{BackendError, RobotBackend};
     use flowram::franka::collision::CollisionProfile;
     use flowram::franka::{FrankaBackend, FrankaOptions};
     let collision = match collision {
@@ -177,7 +177,15 @@ fn run_on_franka(
     if log {
         runner.enable_log(log_seconds, backend.period());
     }
-    let report = runner.run(&mut backend, &file.keyframes)?;
+    let report = match runner.run(&mut backend, &file.keyframes) {
+        Ok(report) => report,
+        // The robot stopped the motion: clear the error so that it is ready again, and say so.
+        Err(e @ (BackendError::Reflex { .. } | BackendError::Communication(_))) => match backend.recover() {
+            Ok(_) => bail!("{e}; the robot was then recovered (automatic error recovery) and is ready for a new run"),
+            Err(r) => bail!("{e}; automatic error recovery failed as well ({r}): recover the robot from Desk"),
+        },
+        Err(e) => return Err(e.into()),
+    };
     let (gripper_commands, gripper_failures) = backend.gripper_commands();
     Ok((report, runner, FrankaFigures { robot, session: backend.figures(), gripper_commands, gripper_failures }))
 }

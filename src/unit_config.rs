@@ -98,10 +98,19 @@ impl ConfigFile {
     }
 
     pub fn parse(path: &Path, text: &str) -> Result<Self, ConfigError> {
-        let root: toml::Table = text.parse().map_err(|e: toml::de::Error| ConfigError {
-            file: path.to_path_buf(),
-            field: "-".into(),
-            message: format!("not valid TOML: {}", e.message()),
+        let root: toml::Table = text.parse().map_err(|e: toml::de::Error| {
+            // Where: the line number and the line itself (it names the field).
+            let at = e.span().map(|span| {
+                let start = span.start.min(text.len());
+                let line = text[..start].matches('\n').count() + 1;
+                let content = text.lines().nth(line - 1).unwrap_or("").trim();
+                format!(" at line {line} (`{content}`)")
+            });
+            ConfigError {
+                file: path.to_path_buf(),
+                field: "-".into(),
+                message: format!("not valid TOML{}: {}", at.unwrap_or_default(), e.message()),
+            }
         })?;
         Ok(Self { path: path.to_path_buf(), root, used: BTreeSet::new() })
     }

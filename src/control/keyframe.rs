@@ -36,7 +36,7 @@ pub enum KeyframeFileError {
     #[error("cannot read the keyframes file {}", path.display())]
     Read { path: std::path::PathBuf, source: std::io::Error },
     #[error(
-        "{} is not a keyframes file; expected {{\"keyframes\":[{{\"position\":[x,y,z],\"quat_wxyz\":[w,x,y,z],\"gripper_open\":true}}, ...]}}",
+        "{} is not a keyframes file ({source}); expected {{\"keyframes\":[{{\"position\":[x,y,z],\"quat_wxyz\":[w,x,y,z],\"gripper_open\":true}}, ...]}}",
         path.display()
     )]
     Format { path: std::path::PathBuf, source: serde_json::Error },

@@ -23,8 +23,11 @@
 //! JSON array of camera names, in tensor order) and `success` (`"true"`/`"false"`).
 //!
 //! `index.json` holds `{"format": "flowram-dataset-v1", "task", "cameras", "image_size": [H, W],
-//! "episodes": [{"file", "variation", "instruction", "seed", "keyframes"}, ...]}`; one dataset
-//! has a single task, camera set and image size.
+//! "episodes": [{"file", "variation", "instruction", "seed", "keyframes", "fnv1a64"}, ...]}`; one
+//! dataset has a single task, camera set and image size. `fnv1a64` is the 64-bit FNV-1a of the
+//! episode file's bytes (16 hex digits): a file whose bytes changed after it was written (a bit
+//! flip, a truncation) fails to load instead of loading as other data. Datasets written before
+//! the digest existed have none, and load unchecked.
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -153,7 +156,8 @@ fn f32_values(bytes: &[u8]) -> Vec<f32> {
 }
 
 /// Validates `episode` and writes it to `path` atomically in the format of the module docs.
-pub fn write_episode(path: &Path, episode: &Episode) -> Result<(), DataError> {
+/// Returns the FNV-1a 64 digest (hex) of the bytes written.
+pub fn write_episode(path: &Path, episode: &Episode) -> Result<String, DataError> {
     episode.validate()?;
     let shapes = episode.shapes();
     let mut buffers: Vec<(&str, Dtype, Vec<usize>, Vec<u8>)> = Vec::new();
@@ -175,7 +179,8 @@ pub fn write_episode(path: &Path, episode: &Episode) -> Result<(), DataError> {
         views.push((*name, TensorView::new(*dtype, shape.clone(), data).map_err(corrupt)?));
     }
     let bytes = safetensors::serialize(views, Some(episode_metadata(episode))).map_err(corrupt)?;
-    crate::files::write_atomic(path, &bytes).map_err(|source| DataError::Write { path: path.to_path_buf(), source })
+    crate::files::write_atomic(path, &bytes).map_err(|source| DataError::Write { path: path.to_path_buf(), source })?;
+    Ok(crate::files::fnv1a64_hex(&bytes))
 }
 
 fn episode_metadata(e: &Episode) -> HashMap<String, String> {
@@ -196,7 +201,23 @@ fn episode_metadata(e: &Episode) -> HashMap<String, String> {
 
 /// Reads and checks one episode file; every error names `path`.
 pub fn read_episode(path: &Path) -> Result<Episode, DataError> {
+    read_episode_checked(path, None)
+}
+
+/// [`read_episode`], refusing a file whose FNV-1a 64 digest (hex) is not `digest`.
+pub fn read_episode_checked(path: &Path, digest: Option<&str>) -> Result<Episode, DataError> {
     let bytes = std::fs::read(path).map_err(|source| DataError::Read { path: path.to_path_buf(), source })?;
+    if let Some(expected) = digest {
+        let actual = crate::files::fnv1a64_hex(&bytes);
+        if actual != expected {
+            return Err(DataError::Corrupted {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "its content changed after it was written (FNV-1a {actual}, the index recorded {expected}); re-collect it or remove it from index.json"
+                ),
+            });
+        }
+    }
     check_layout(path, &bytes)?;
     let corrupted =
         |e: safetensors::SafeTensorError| DataError::Corrupted { path: path.to_path_buf(), reason: e.to_string() };
@@ -336,6 +357,7 @@ fn tensor<'a>(
 
 /// The contents of `index.json`.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct DatasetIndex {
     /// Always [`DATASET_FORMAT`].
     pub format: String,
@@ -348,12 +370,16 @@ pub struct DatasetIndex {
 
 /// One episode listed in `index.json`; `file` is relative to the dataset folder.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct IndexEntry {
     pub file: String,
     pub variation: usize,
     pub instruction: String,
     pub seed: u64,
     pub keyframes: usize,
+    /// FNV-1a 64 of the episode file (hex); absent in datasets written before it existed.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fnv1a64: Option<String>,
 }
 
 /// Reads and checks `dir/index.json`; errors name the file.
@@ -454,13 +480,14 @@ impl DatasetWriter {
         }
         let file = name(number);
         let path = self.dir.join(&file);
-        write_episode(&path, episode)?;
+        let digest = write_episode(&path, episode)?;
         let entry = IndexEntry {
             file,
             variation: episode.variation,
             instruction: episode.instruction.clone(),
             seed: episode.seed,
             keyframes: episode.keyframes(),
+            fnv1a64: Some(digest),
         };
         self.index.episodes.push(entry);
         if let Err(e) = write_index(&self.dir, &self.index) {
@@ -487,12 +514,13 @@ impl DatasetWriter {
         let file = name(number);
         let path = self.dir.join(&file);
         let _ = std::fs::remove_file(&path); // a leftover of a killed merge, not in the index
+        let bytes = std::fs::read(source).map_err(|e| DataError::Read { path: source.to_path_buf(), source: e })?;
         if std::fs::hard_link(source, &path).is_err() {
-            let bytes = std::fs::read(source).map_err(|e| DataError::Read { path: source.to_path_buf(), source: e })?;
             crate::files::write_atomic(&path, &bytes)
                 .map_err(|source| DataError::Write { path: path.clone(), source })?;
         }
-        self.index.episodes.push(IndexEntry { file, ..entry.clone() });
+        let fnv1a64 = Some(crate::files::fnv1a64_hex(&bytes));
+        self.index.episodes.push(IndexEntry { file, fnv1a64, ..entry.clone() });
         if let Err(e) = write_index(&self.dir, &self.index) {
             self.index.episodes.pop();
             return Err(e);
@@ -537,7 +565,7 @@ fn load_entry(path: &Path, entry: &IndexEntry, index: &DatasetIndex) -> Result<E
             problem: "the file name must be a plain name inside the dataset folder".into(),
         });
     }
-    let episode = read_episode(path)?;
+    let episode = read_episode_checked(path, entry.fnv1a64.as_deref())?;
     let problem = if episode.task != index.task || episode.cameras != index.cameras {
         format!(
             "task/cameras {:?}/{:?}, index says {:?}/{:?}",

@@ -10,7 +10,7 @@ use candle_core::DType;
 use candle_nn::{VarBuilder, VarMap};
 use rand::SeedableRng;
 
-use crate::policy::checkpoint::format::{EMA_FILE, read_checkpoint_config};
+use crate::policy::checkpoint::format::{CONFIG_FILE, EMA_FILE, read_checkpoint_config, verify_checkpoint_files};
 use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::checkpoint::weights::load_model_weights;
 use crate::policy::config::PolicyConfig;
@@ -74,6 +74,7 @@ impl Policy {
                         .into(),
             })?
         };
+        verify_checkpoint_files(&dir, &[CONFIG_FILE, EMA_FILE])?;
         let config = read_checkpoint_config(&dir)?;
         let varmap = VarMap::new();
         let model = FlowRam::new(&config, VarBuilder::from_varmap(&varmap, DType::F32, &device()))?;

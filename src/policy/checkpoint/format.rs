@@ -24,15 +24,7 @@ pub const EMA_UPDATES_TENSOR: &str = "__ema_updates";
 pub const DIGESTED_FILES: [&str; 4] = [CONFIG_FILE, MODEL_FILE, EMA_FILE, OPTIMIZER_FILE];
 pub(super) const FORMAT_VERSION: u32 = 1;
 
-/// 64-bit FNV-1a of a byte string (a corruption check, not a cryptographic hash).
-pub fn fnv1a64(bytes: &[u8]) -> u64 {
-    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
-    for &b in bytes {
-        h ^= b as u64;
-        h = h.wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    h
-}
+pub use crate::files::fnv1a64;
 
 /// Size and digest of one checkpoint file, recorded in `trainer.json`.
 #[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -89,6 +81,20 @@ pub(super) struct TrainerFile {
 /// Reads and verifies a checkpoint's `trainer.json` and the digests of its files; returns the
 /// files' contents by name.
 pub(super) fn read_trainer_file(dir: &Path) -> Result<(TrainerFile, HashMap<&'static str, Vec<u8>>)> {
+    read_trainer_file_verifying(dir, &DIGESTED_FILES)
+}
+
+/// Verifies the files `names` of checkpoint `dir` against the sizes and digests its
+/// `trainer.json` recorded (what a policy loads: [`CONFIG_FILE`] and [`EMA_FILE`]), so that a
+/// changed byte is an error naming the file instead of other weights.
+pub fn verify_checkpoint_files(dir: &Path, names: &[&'static str]) -> Result<()> {
+    read_trainer_file_verifying(dir, names).map(|_| ())
+}
+
+fn read_trainer_file_verifying(
+    dir: &Path,
+    names: &[&'static str],
+) -> Result<(TrainerFile, HashMap<&'static str, Vec<u8>>)> {
     let trainer_path = dir.join(TRAINER_FILE);
     let text = fs::read_to_string(&trainer_path)
         .map_err(|e| PolicyError::io(&trainer_path, "read (is this a committed checkpoint directory?)", e))?;
@@ -101,7 +107,7 @@ pub(super) fn read_trainer_file(dir: &Path) -> Result<(TrainerFile, HashMap<&'st
         ));
     }
     let mut contents = HashMap::new();
-    for name in DIGESTED_FILES {
+    for &name in names {
         let path = dir.join(name);
         let expected = trainer
             .files

@@ -72,8 +72,8 @@ fn last_logged_step(run: &Path) -> u64 {
     std::fs::read_to_string(run.join("metrics.csv"))
         .unwrap_or_default()
         .lines()
-        .filter_map(|l| l.split(',').next()?.parse().ok())
-        .last()
+        .rev()
+        .find_map(|l| l.split(',').next()?.parse().ok())
         .unwrap_or(0)
 }
 

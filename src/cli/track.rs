@@ -10,6 +10,24 @@ use flowram::control::runner::{RunReport, Runner};
 use flowram::files::write_atomic;
 use flowram::franka::FrankaRobot;
 
+/// Which Franka (`--robot`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
+pub enum RobotArg {
+    /// Franka Emika Panda (FER): FCI v5, controllers/panda_limits.toml.
+    Panda,
+    /// Franka Research 3: FCI v10, controllers/fr3_limits.toml.
+    Fr3,
+}
+
+impl From<RobotArg> for FrankaRobot {
+    fn from(r: RobotArg) -> Self {
+        match r {
+            RobotArg::Panda => FrankaRobot::Panda,
+            RobotArg::Fr3 => FrankaRobot::Fr3,
+        }
+    }
+}
+
 #[derive(Debug, Clone, Copy, PartialEq, Eq, ValueEnum)]
 pub enum Backend {
     /// The MuJoCo-simulated Panda.
@@ -41,7 +59,7 @@ pub struct TrackArgs {
     robot_ip: Option<String>,
     /// Which Franka (--backend franka): its protocol version and joint limits.
     #[arg(long, value_enum, default_value = "fr3")]
-    robot: FrankaRobot,
+    robot: RobotArg,
     /// Collision thresholds sent to the Franka (TOML); default controllers/franka_collision.toml.
     #[arg(long)]
     collision: Option<PathBuf>,
@@ -98,7 +116,7 @@ pub fn run(args: TrackArgs) -> anyhow::Result<()> {
             };
             let (report, runner, figures) = run_on_franka(
                 address,
-                args.robot,
+                args.robot.into(),
                 args.collision.as_deref(),
                 !args.no_gripper,
                 config,

@@ -22,7 +22,7 @@ use crate::robot::JointLimits;
 use crate::unit_config::ConfigError;
 
 /// Which Franka arm: decides the protocol version and the joint limits.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum FrankaRobot {
     /// Franka Emika Panda (FER), FCI v5, `controllers/panda_limits.toml`.

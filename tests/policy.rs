@@ -212,6 +212,42 @@ fn the_instruction_reaches_the_adaln_condition_only_when_configured() {
 }
 
 #[test]
+fn the_instruction_pointer_reads_the_instruction_and_caches_like_the_rest_of_the_prefix() {
+    use flowram::policy::inputs::{Augmentation, prefix_inputs, suffix_inputs};
+    let mut config = tiny_config();
+    // no AdaLN: the pointer token is the instruction's only way past the scan's first tokens
+    config.model.instruction_adaln = false;
+    config.model.instruction_pointer = true;
+    config.model.instruction_pooling = InstructionPooling::Attention;
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let observation = Observation::from_episode(demonstration(), 0).unwrap();
+    let prepared = policy.prepare(&observation).unwrap();
+    let observations = [(&prepared, Augmentation::NONE)];
+    let prefix = prefix_inputs(&config, &observations).unwrap();
+    let action = [[0.1f32, -0.2, 0.3, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]];
+    let suffix = suffix_inputs(&config, &observations, &[0], &action, &[0.4], &config.radius_schedule).unwrap();
+    let whole = policy.model.forward(&prefix, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
+    let encoded = policy.model.encode(&prefix).unwrap();
+    let cached = policy.model.step(&encoded, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
+    for (a, b) in whole[0].iter().zip(&cached[0]) {
+        assert!((a - b).abs() < 1e-4, "training forward {:?}, cached inference {:?}", whole[0], cached[0]);
+    }
+    // The pointer token itself (the prefix's last) moves with the instruction.
+    let pointer_token = |o: &Observation| -> Vec<f32> {
+        let mut policy = Policy::random(&config, text()).unwrap();
+        let prepared = policy.prepare(o).unwrap();
+        let prefix = prefix_inputs(&config, &[(&prepared, Augmentation::NONE)]).unwrap();
+        let expected = config.observation.language_tokens + config.observation.semantic_tokens + 1;
+        let tokens = policy.model.prefix_token_features(&prefix).unwrap();
+        assert_eq!(tokens.dim(1).unwrap(), expected, "language, semantic, pointer");
+        tokens.narrow(1, expected - 1, 1).unwrap().flatten_all().unwrap().to_vec1().unwrap()
+    };
+    let other = Observation { instruction: "open the middle drawer".into(), ..observation.clone() };
+    assert_ne!(other.instruction, observation.instruction);
+    assert_ne!(pointer_token(&observation), pointer_token(&other), "the pointer token does not read the instruction");
+}
+
+#[test]
 fn configs_written_before_the_conditioning_options_load_with_the_papers_choices() {
     // A checkpoint's config.json from before model.instruction_adaln, flow.prediction and
     // flow.time_sampling existed: it must load, and mean what it meant then.

@@ -71,6 +71,13 @@ pub struct ModelConfig {
     /// condition rather than be averaged with the words every instruction of the task shares).
     #[serde(default)]
     pub instruction_pooling: InstructionPooling,
+    /// Append an instruction-pointer token to the prefix: a softmax attention whose query is the
+    /// instruction (pooled as `instruction_pooling` says) and whose keys and values are the
+    /// semantic tokens, so "the red button" can pick out the tokens that look like it and hand
+    /// their features and positions to the scan in one token. Off (the paper): the scan alone
+    /// must carry the instruction to the right tokens.
+    #[serde(default)]
+    pub instruction_pointer: bool,
 }
 
 /// How the instruction AdaLN (`model.instruction_adaln`) pools the instruction's tokens.

@@ -128,6 +128,35 @@ pub struct Velocity {
     pub open_logit: Tensor,
 }
 
+/// The instruction-pointer token (`model.instruction_pointer`): one attention of the instruction
+/// over the semantic tokens.
+#[derive(Debug, Clone)]
+struct InstructionPointer {
+    query: Linear,
+    key: Linear,
+    out: Linear,
+}
+
+impl InstructionPointer {
+    fn new(c: usize, vb: VarBuilder) -> Result<Self> {
+        Ok(Self {
+            query: candle_nn::linear(TEXT_HIDDEN_SIZE, c, vb.pp("query"))?,
+            key: candle_nn::linear_no_bias(c, c, vb.pp("key"))?,
+            out: candle_nn::linear(c, c, vb.pp("out"))?,
+        })
+    }
+
+    /// instruction [B, 384], tokens [B, N, C] -> [B, 1, C].
+    fn forward(&self, instruction: &Tensor, tokens: &Tensor) -> Result<Tensor> {
+        let c = tokens.dim(2)?;
+        let q = self.query.forward(instruction)?.unsqueeze(1)?;
+        let k = self.key.forward(tokens)?;
+        let scores = q.matmul(&k.transpose(1, 2)?.contiguous()?)?.affine(1.0 / (c as f64).sqrt(), 0.0)?;
+        let weights = candle_nn::ops::softmax_last_dim(&scores)?;
+        Ok(self.out.forward(&weights.matmul(tokens)?)?)
+    }
+}
+
 /// The FlowRAM network. Weights live in the `VarBuilder`'s storage (a `VarMap` for training).
 #[derive(Debug, Clone)]
 pub struct FlowRam {
@@ -142,6 +171,8 @@ pub struct FlowRam {
     instruction_mlp: Option<Mlp>,
     /// Scores of the instruction's tokens for `model.instruction_pooling = "attention"`.
     instruction_scores: Option<Linear>,
+    /// `model.instruction_pointer`.
+    pointer: Option<InstructionPointer>,
     time_mlp: Mlp,
     mamba: MambaStack,
     position_head: Mlp,
@@ -180,10 +211,15 @@ impl FlowRam {
             } else {
                 None
             },
-            instruction_scores: if config.model.instruction_adaln
+            instruction_scores: if (config.model.instruction_adaln || config.model.instruction_pointer)
                 && config.model.instruction_pooling == InstructionPooling::Attention
             {
                 Some(candle_nn::linear(TEXT_HIDDEN_SIZE, 1, vb.pp("instruction_scores"))?)
+            } else {
+                None
+            },
+            pointer: if config.model.instruction_pointer {
+                Some(InstructionPointer::new(c, vb.pp("instruction_pointer"))?)
             } else {
                 None
             },
@@ -228,8 +264,10 @@ impl FlowRam {
                 + t * mamba.layer_flops_per_token(false)
                 + if last_output { mamba.layer_flops_per_token(true) - mamba.layer_flops_per_token(false) } else { 0.0 }
         };
+        let pointer = usize::from(self.pointer.is_some());
         let prefix = 2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c) as f64
-            + scan(o.language_tokens + o.semantic_tokens, false);
+            + 2.0 * ((o.semantic_tokens + 2) * c * c) as f64 * pointer as f64
+            + scan(o.language_tokens + o.semantic_tokens + pointer, false);
         let heads = 2.0 * (3.0 * (c * c) as f64 + (c * (3 + 6 + 1)) as f64);
         let step = 2.0 * (ACTION_DIMS * c) as f64 + 2.0 * (c * c) as f64 + scan(o.geometric_tokens + 1, true) + heads;
         encoder + prefix + steps as f64 * step
@@ -253,7 +291,7 @@ impl FlowRam {
         Ok(g.reshape((batch, n / batch, c))?)
     }
 
-    /// Prefix tokens [B, Lt + N1, C] and the prefix condition [B, C].
+    /// Prefix tokens [B, Lt + N1 (+ 1 pointer), C] and the prefix condition [B, C].
     fn prefix_tokens(&self, features: &Tensor, inputs: &PrefixInputs) -> Result<(Tensor, Tensor)> {
         let c = self.config.model.channels;
         let b = inputs.proprio.dim(0)?;
@@ -261,16 +299,28 @@ impl FlowRam {
         let semantic = Self::gather(features, &inputs.semantic_cells, b)?
             .add(&positional_encoding(&inputs.semantic_xyz, c)?)?
             .broadcast_add(&self.type_embedding(SEMANTIC)?)?;
-        let tokens = Tensor::cat(&[language, semantic], 1)?;
+        let instruction = match &self.instruction_scores {
+            None => inputs.instruction.clone(),
+            Some(scores) => attention_pool(&inputs.language, scores)?,
+        };
+        let tokens = match &self.pointer {
+            Some(pointer) => {
+                let pointed = pointer.forward(&instruction, &semantic)?;
+                Tensor::cat(&[language, semantic, pointed], 1)?
+            }
+            None => Tensor::cat(&[language, semantic], 1)?,
+        };
         let mut condition = self.proprio_mlp.forward(&inputs.proprio)?;
         if let Some(mlp) = &self.instruction_mlp {
-            let instruction = match &self.instruction_scores {
-                None => inputs.instruction.clone(),
-                Some(scores) => attention_pool(&inputs.language, scores)?,
-            };
             condition = condition.add(&mlp.forward(&instruction)?)?;
         }
         Ok((tokens, condition))
+    }
+
+    /// The prefix's tokens before the scan, [B, Lt + N1 (+ 1 pointer), C] (for tests and probes).
+    pub fn prefix_token_features(&self, inputs: &PrefixInputs) -> Result<Tensor> {
+        let features = self.image_features(&inputs.images)?;
+        Ok(self.prefix_tokens(&features, inputs)?.0)
     }
 
     /// Suffix tokens [B, N2 + 1, C] and the suffix condition [B, C].

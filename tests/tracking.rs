@@ -140,3 +140,22 @@ fn an_interrupted_motion_stays_continuous() {
     }
     assert!((refs.last().unwrap().q - second).norm() < 1e-9);
 }
+
+#[test]
+fn a_keyframe_inside_the_table_is_not_reached_and_no_limit_is_exceeded() {
+    // The fault bench's blocked TCP: a pose 4 cm below the table top, straight down from home.
+    // The arm presses compliantly and settles short (below the collision reflex); the
+    // joint-limit constraints, which count the table's push, keep every joint inside its
+    // limits, and the next keyframe is reached as usual.
+    let mut world = World::load_named("default").unwrap();
+    let (mut runner, limits) = stack(&world);
+    let home = world.arm_state().tcp_in_base;
+    let table_top_in_base = 0.0; // the base stands on the table (world z 0.75)
+    let inside = Translation3::new(0.0, 0.0, table_top_in_base - 0.04 - home.translation.z) * home;
+    let report = runner.run(&mut world, &[Keyframe::at(&inside, true), Keyframe::at(&home, true)]).unwrap();
+    assert!(!report.keyframes[0].reached, "{:?}", report.keyframes[0]);
+    assert!(report.keyframes[0].pos_err_mm > 30.0, "the table stopped it: {:?}", report.keyframes[0]);
+    assert!(report.keyframes[1].reached, "{:?}", report.keyframes[1]);
+    assert_eq!(report.limit_violations, 0, "{report:?}");
+    assert_log_within_limits(runner.log().unwrap(), &limits, world.timestep());
+}

@@ -268,8 +268,8 @@ pub fn faults(args: FaultsBenchArgs) -> anyhow::Result<()> {
         r.panics
     );
     println!(
-        "holds: {} keyframes refused, {} runs ended by the watchdog; keyframes reached {}/{} commanded; QP fallback ticks {}",
-        r.holds_rejected, r.holds_watchdog, r.keyframes_reached, r.keyframes_commanded, r.qp_fallbacks
+        "holds: {} keyframes refused, {} runs ended by the watchdog, {} motions stopped by the collision reflex; keyframes reached {}/{} commanded; QP fallback ticks {}",
+        r.holds_rejected, r.holds_watchdog, r.holds_reflex, r.keyframes_reached, r.keyframes_commanded, r.qp_fallbacks
     );
     println!("runs ended: {}", r.stops.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "));
     Ok(())

@@ -21,6 +21,10 @@ pub struct RobotState {
     /// The torques the robot received as last command (Nm, gravity excluded): what torque-rate
     /// limits are measured against.
     pub tau_commanded: JointVector,
+    /// External torque on each joint (Nm): what the environment (contacts, a joint's end stop)
+    /// exerts; the robot's estimate (`tau_ext_hat_filtered`) on a Franka, the constraint
+    /// forces in MuJoCo. What the collision reflex watches.
+    pub tau_ext: JointVector,
     /// Fraction of the last 100 command cycles that reached the robot in time (1 in simulation).
     pub command_success_rate: f64,
     /// What the robot is doing.

@@ -148,7 +148,7 @@ impl ArmController {
                 self.tcp = m.tcp;
                 let task = TaskReference::from_joint_setpoint(&self.reference, &r);
                 self.task = Some(task);
-                self.osc.compute(&state.q, &state.dq, &m, &task)
+                self.osc.compute(&state.q, &state.dq, &m, &task, &state.tau_ext)
             }
             _ => {
                 self.faults.kinematics += 1;

@@ -77,6 +77,12 @@ impl MotionPlan {
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Phase {
     Moving,
+    /// The collision reflex fired; the arm is told to back off at the next tick.
+    ReflexPending,
+    /// Backing off after the reflex.
+    Stopping {
+        since: f64,
+    },
     /// Settled; the gripper command is applied at the next tick.
     GripperPending,
     Gripper {
@@ -93,9 +99,55 @@ pub struct ExecutionOutcome {
     pub error: Vector6<f64>,
     /// What the gripper did, if the keyframe changed its state.
     pub gripper: Option<GraspState>,
+    /// The collision reflex stopped the motion (the gripper was then left as it was).
+    pub reflex: Option<Reflex>,
 }
 
+/// Why the collision reflex fired: the first joint whose external torque exceeded its threshold.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Reflex {
+    /// Joint index, 0 (base) to 6.
+    pub joint: usize,
+    /// External torque there (Nm) and the threshold.
+    pub torque: f64,
+    pub threshold: f64,
+}
+
+impl std::fmt::Display for Reflex {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "stopped by the collision reflex and backed off: external torque {:.1} Nm on joint {} (threshold {:.1} Nm)",
+            self.torque,
+            self.joint + 1,
+            self.threshold
+        )
+    }
+}
+
+/// After the reflex, the arm counts as backed off once its trajectory has ended and it moves
+/// slower than this (rad/s), or after [`REFLEX_STOP_TIMEOUT`] seconds.
+const REFLEX_STILL: f64 = 0.01;
+const REFLEX_STOP_TIMEOUT: f64 = 3.0;
+
 impl ExecutionOutcome {
+    /// Whether the keyframe was reached: settled within the profile's tolerances, and not
+    /// stopped by the collision reflex.
+    pub fn reached(&self, config: &super::osc_config::OscConfig) -> bool {
+        self.reflex.is_none()
+            && self.position_error() <= config.reached_position
+            && self.rotation_error() <= config.reached_orientation
+    }
+
+    /// Why the keyframe was not reached (`None` if it was).
+    pub fn problem(&self, config: &super::osc_config::OscConfig) -> Option<String> {
+        let (ep, er) = (self.position_error() * 1e3, self.rotation_error().to_degrees());
+        match self.reflex {
+            Some(reflex) => Some(format!("{reflex}, {ep:.2} mm from the keyframe")),
+            None => (!self.reached(config)).then(|| format!("settled {ep:.2} mm / {er:.3} deg from the keyframe")),
+        }
+    }
+
     pub fn position_error(&self) -> f64 {
         self.error.fixed_rows::<3>(0).norm()
     }
@@ -116,6 +168,9 @@ pub struct Execution {
     actuate: bool,
     gripper_timeout: f64,
     grasp: Option<GraspState>,
+    reflex: Option<Reflex>,
+    /// The reference joints when the motion started: where the collision reflex backs off to.
+    start: Option<crate::robot::JointVector>,
     phase: Phase,
 }
 
@@ -132,6 +187,8 @@ impl Execution {
             error: Vector6::zeros(),
             gripper_timeout,
             grasp: None,
+            reflex: None,
+            start: None,
             phase: Phase::Moving,
         }
     }
@@ -146,7 +203,7 @@ impl Execution {
 
     /// The outcome once [`Execution::is_done`].
     pub fn outcome(&self) -> ExecutionOutcome {
-        ExecutionOutcome { error: self.error, gripper: self.grasp }
+        ExecutionOutcome { error: self.error, gripper: self.grasp, reflex: self.reflex }
     }
 
     /// Call before the controller's tick: feeds the next waypoint as soon as the reference nears
@@ -154,6 +211,7 @@ impl Execution {
     pub fn before_tick(&mut self, controller: &mut ArmController, gripper: &mut Gripper, state: &RobotState) {
         match self.phase {
             Phase::Moving => {
+                self.start.get_or_insert(controller.reference().q);
                 let goals = self.plan.goals();
                 if self.next < goals.len()
                     && (self.next == 0 || (controller.reference().q - goals[self.next - 1]).norm() < WAYPOINT_SWITCH)
@@ -162,12 +220,19 @@ impl Execution {
                     self.next += 1;
                 }
             }
+            Phase::ReflexPending => {
+                // Back off to where the motion started (free of the contact, as the arm came
+                // from there), rather than hold: holding in contact keeps the obstacle pushing
+                // on joints weaker than the ones pressing.
+                controller.set_goal(&self.start.unwrap_or(state.q));
+                self.phase = Phase::Stopping { since: state.time };
+            }
             Phase::GripperPending => {
                 controller.set_gripper(self.plan.gripper_open);
                 gripper.command(self.plan.gripper_open);
                 self.phase = Phase::Gripper { since: state.time };
             }
-            Phase::Gripper { .. } | Phase::Done => {}
+            Phase::Gripper { .. } | Phase::Stopping { .. } | Phase::Done => {}
         }
     }
 
@@ -178,6 +243,12 @@ impl Execution {
             Phase::Moving => {
                 let c = controller.osc().config();
                 self.error = pose_error(&self.plan.target, controller.tcp());
+                let limit = &c.reflex_external_torque;
+                if let Some(joint) = (0..7).find(|&i| state.tau_ext[i].abs() > limit[i]) {
+                    self.reflex = Some(Reflex { joint, torque: state.tau_ext[joint].abs(), threshold: limit[joint] });
+                    self.phase = Phase::ReflexPending;
+                    return false;
+                }
                 if self.next < self.plan.len || !controller.trajectory_finished() {
                     return false;
                 }
@@ -197,7 +268,14 @@ impl Execution {
                     self.phase = Phase::Done;
                 }
             }
-            Phase::GripperPending | Phase::Done => {}
+            Phase::Stopping { since } => {
+                self.error = pose_error(&self.plan.target, controller.tcp());
+                let still = controller.trajectory_finished() && state.dq.norm() < REFLEX_STILL;
+                if still || state.time - since >= REFLEX_STOP_TIMEOUT {
+                    self.phase = Phase::Done;
+                }
+            }
+            Phase::GripperPending | Phase::ReflexPending | Phase::Done => {}
         }
         self.phase == Phase::Done
     }

@@ -198,13 +198,18 @@ impl Osc {
         self.integral = Vector6::zeros();
     }
 
-    /// The torque for this tick. `dynamics` is the model at the measured state (q, q̇).
+    /// The torque for this tick. `dynamics` is the model at the measured state (q, q̇);
+    /// `external` the measured external torque (contacts, end stops), which the joint-limit
+    /// constraints account for: an obstacle pushing a joint toward its limit is braked against,
+    /// not only the arm's own motion. The task does not compensate it (a contact stays
+    /// compliant).
     pub fn compute(
         &mut self,
         q: &JointVector,
         dq: &JointVector,
         dynamics: &Dynamics,
         reference: &TaskReference,
+        external: &JointVector,
     ) -> OscOutput {
         self.stats.ticks += 1;
         let (tau_lo, tau_hi) = self.torque_bounds();
@@ -223,7 +228,14 @@ impl Osc {
         self.compensate_friction(q, dq, reference);
         let offset = dynamics.coriolis + self.friction_torque;
         let mass = &dynamics.mass;
-        self.write_bounds(q, dq, &tau_lo, &tau_hi, &offset);
+        // The acceleration the external torque adds to the model's: M^-1 tau_ext.
+        let external = external.map(|v| if v.is_finite() { v } else { 0.0 });
+        let external_acceleration = if external.iter().all(|&v| v == 0.0) {
+            JointVector::zeros()
+        } else {
+            mass.cholesky().map_or_else(JointVector::zeros, |c| c.solve(&external))
+        };
+        self.write_bounds(q, dq, &tau_lo, &tau_hi, &offset, &external_acceleration);
         let Some(ddq) = self.solve_qp(q, &hessian, &gradient, mass) else {
             return self.fallback(dq, &tau_lo, &tau_hi, error);
         };
@@ -358,7 +370,8 @@ impl Osc {
     }
 
     /// Bounds of the QP's rows: torque rows (on M q̈ = tau - C q̇ - friction, `offset` being
-    /// C q̇ + friction) and acceleration rows.
+    /// C q̇ + friction) and acceleration rows, on the acceleration the joints will have: the
+    /// QP's q̈ plus `external_acceleration`.
     fn write_bounds(
         &mut self,
         q: &JointVector,
@@ -366,13 +379,14 @@ impl Osc {
         tau_lo: &JointVector,
         tau_hi: &JointVector,
         offset: &JointVector,
+        external_acceleration: &JointVector,
     ) {
         let ddq_bounds = self.acceleration_bounds(q, dq);
         for i in 0..N {
             self.lower[i] = tau_lo[i] - offset[i];
             self.upper[i] = tau_hi[i] - offset[i];
-            self.lower[N + i] = ddq_bounds.0[i];
-            self.upper[N + i] = ddq_bounds.1[i];
+            self.lower[N + i] = ddq_bounds.0[i] - external_acceleration[i];
+            self.upper[N + i] = ddq_bounds.1[i] - external_acceleration[i];
         }
     }
 

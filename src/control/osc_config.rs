@@ -62,6 +62,9 @@ pub struct OscConfig {
     pub reached_position: f64,
     pub reached_orientation: f64,
     pub settle_timeout: f64,
+    /// The collision reflex: an external torque above this on any joint (Nm) stops the motion
+    /// where the arm is (`[reflex] external_torque`).
+    pub reflex_external_torque: JointVector,
 }
 
 impl OscConfig {
@@ -128,6 +131,11 @@ impl OscConfig {
             reached_position: f.quantity("reached.position", Quantity::Length, Sign::Positive)?,
             reached_orientation: f.quantity("reached.orientation", Quantity::Angle, Sign::Positive)?,
             settle_timeout: f.quantity("reached.settle_timeout", Quantity::Time, Sign::Positive)?,
+            reflex_external_torque: JointVector::from_column_slice(&f.quantities::<7>(
+                "reflex.external_torque",
+                Quantity::Torque,
+                Sign::Positive,
+            )?),
         };
         f.finish()?;
         Ok(config)

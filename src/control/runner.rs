@@ -205,15 +205,13 @@ impl Runner {
         for (i, outcome, t0, t1) in done {
             let (ep, er) = (outcome.position_error(), outcome.rotation_error());
             let c = self.controller.osc().config();
-            let reached = ep <= c.reached_position && er <= c.reached_orientation;
             let ik_ms = plans.iter().find(|p| p.0 == i).map_or(0.0, |p| p.2);
             reports[i] = Some(KeyframeReport {
-                reached,
+                reached: outcome.reached(c),
                 pos_err_mm: ep * 1e3,
                 rot_err_deg: er.to_degrees(),
                 time_s: t1 - t0,
-                error: (!reached)
-                    .then(|| format!("settled {:.2} mm / {:.3} deg from the keyframe", ep * 1e3, er.to_degrees())),
+                error: outcome.problem(c),
                 gripper: outcome.gripper.map(|g| describe(&g)),
                 ik_ms,
             });

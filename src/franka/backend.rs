@@ -111,6 +111,7 @@ fn convert(s: &::franka::RobotState, clock_origin: f64, gripper: Option<&Gripper
         gripper_width,
         gripper_speed,
         tau_commanded: v(&s.tau_J_d),
+        tau_ext: v(&s.tau_ext_hat_filtered),
         command_success_rate: s.control_command_success_rate,
         mode: mode(s.robot_mode),
         errors,

@@ -46,9 +46,11 @@ pub struct FaultReport {
     pub runs_with_violations: u64,
     pub runs_with_violations_without_blocked_tcp: u64,
     pub panics: u64,
-    /// Keyframes refused (the arm held) and runs the watchdog ended (the arm held).
+    /// Keyframes refused (the arm held), runs the watchdog ended (the arm held), and motions
+    /// the collision reflex stopped (the arm stopped where it was).
     pub holds_rejected: u64,
     pub holds_watchdog: u64,
+    pub holds_reflex: u64,
     /// Plans started, and keyframes the arm reached to tolerance.
     pub keyframes_commanded: u64,
     pub keyframes_reached: u64,
@@ -255,9 +257,8 @@ fn fault_run(seed: u64, report: &mut FaultReport) -> Result<(), RolloutError> {
             Event::WatchdogHold { .. } => report.holds_watchdog += 1,
             Event::PlanStarted { .. } => report.keyframes_commanded += 1,
             Event::KeyframeDone { outcome, .. } => {
-                report.keyframes_reached += u64::from(
-                    outcome.position_error() <= c.reached_position && outcome.rotation_error() <= c.reached_orientation,
-                );
+                report.keyframes_reached += u64::from(outcome.reached(&c));
+                report.holds_reflex += u64::from(outcome.reflex.is_some());
             }
             Event::Requested { .. } => {}
         }

@@ -229,17 +229,9 @@ pub fn run_realtime_episode(
         match *e {
             Event::KeyframeDone { outcome, .. } => {
                 result.keyframes += 1;
-                if outcome.position_error() <= c.reached_position && outcome.rotation_error() <= c.reached_orientation {
-                    result.reached += 1;
-                } else {
-                    result.problems.push((
-                        k,
-                        format!(
-                            "settled {:.2} mm / {:.3} deg from the keyframe",
-                            outcome.position_error() * 1e3,
-                            outcome.rotation_error().to_degrees()
-                        ),
-                    ));
+                match outcome.problem(c) {
+                    None => result.reached += 1,
+                    Some(problem) => result.problems.push((k, problem)),
                 }
             }
             Event::Rejected { why, .. } => result.problems.push((k, format!("keyframe refused: {}", why.name()))),

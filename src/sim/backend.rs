@@ -22,6 +22,7 @@ impl RobotBackend for World {
             // MuJoCo applies every command in time and exactly (the motors' ranges are the
             // rated torques, which the controller stays inside).
             tau_commanded: s.tau,
+            tau_ext: s.tau_ext,
             command_success_rate: 1.0,
             mode: RobotMode::Move,
             errors: 0,

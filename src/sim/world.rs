@@ -30,6 +30,10 @@ pub struct ArmState {
     pub tcp_in_base: Isometry3<f64>,
     /// Distance between the fingers (m): 0 closed, 0.08 fully open.
     pub gripper_width: f64,
+    /// Constraint torques on the arm's joints (Nm): what contacts and joint limits exert on
+    /// them (MuJoCo's `qfrc_constraint`), the simulated counterpart of a Franka's
+    /// external-torque estimate.
+    pub tau_ext: JointVector,
 }
 
 /// MuJoCo indices of the arm, resolved once at load.
@@ -200,6 +204,7 @@ impl World {
         let q = JointVector::from_fn(|i, _| qpos[self.arm.qpos[i]]);
         let dq = JointVector::from_fn(|i, _| qvel[self.arm.dof[i]]);
         let tau = JointVector::from_fn(|i, _| force[self.arm.motor[i]]);
+        let tau_ext = self.external_joint_torques();
         let gripper_width = self.arm.finger_qpos.iter().map(|&a| qpos[a]).sum();
         ArmState {
             time: self.time(),
@@ -208,7 +213,27 @@ impl World {
             tau,
             tcp_in_base: self.base_pose().inverse() * self.tcp_pose(),
             gripper_width,
+            tau_ext,
         }
+    }
+
+    /// Constraint torques on the arm's joints without the joints' own dry friction (MuJoCo
+    /// models it as a constraint too; a robot's external-torque estimate does not count it).
+    fn external_joint_torques(&self) -> JointVector {
+        let constraint = self.data.qfrc_constraint();
+        let mut tau = JointVector::from_fn(|i, _| constraint[self.arm.dof[i]]);
+        let types = self.data.efc_type();
+        let ids = self.data.efc_id();
+        // SAFETY: efc_force holds nefc entries written by the last step, like efc_type and efc_id.
+        let forces = unsafe { self.data.efc_force() };
+        for ((kind, &id), &force) in types.iter().zip(ids).zip(forces) {
+            if *kind == mujoco_rs::mujoco_c::mjtConstraint::mjCNSTR_FRICTION_DOF
+                && let Some(i) = self.arm.dof.iter().position(|&d| d as i32 == id)
+            {
+                tau[i] -= force;
+            }
+        }
+        tau
     }
 
     /// Finger joint velocities (m/s), for grasp detection.

@@ -160,8 +160,9 @@ fn clean_run_reaches_keyframes_within_the_robots_limits(server: &Server, file: &
     let step = franka["max_received_torque_step"].as_f64().unwrap();
     assert!(step <= 1.0 + 1e-4, "the robot received a torque step of {step} Nm in 1 ms");
     assert!(franka["cycles"].as_u64().unwrap() > 1000, "{franka}");
-    // the hand was told to close and to open again
-    assert!(franka["gripper_commands"].as_u64().unwrap() >= 2, "{franka}");
+    // the hand was told to close and to open again (it starts open: nothing to send first)
+    assert_eq!(franka["gripper_commands"].as_u64(), Some(2), "{franka}");
+    assert_eq!(franka["gripper_failures"].as_u64(), Some(0), "{franka}");
     // no abort (the run would have failed) and nothing the server flagged
     for bad in ["communication_constraints_violation", "Reflex", "limits_violation", "discontinuity"] {
         assert!(!server_log.contains(bad), "the server logged `{bad}`:\n{server_log}");
@@ -172,9 +173,16 @@ fn clean_run_reaches_keyframes_within_the_robots_limits(server: &Server, file: &
 /// with communication_constraints_violation after 20 lost cycles; track reports it as a
 /// communication failure, runs automatic error recovery, and a new run then succeeds.
 fn a_stalled_client_is_aborted_recovered_and_the_robot_runs_again(server: &Server, file: &Path) {
+    let sessions = |log: &str| log.matches("Setting control mode to TORQUE").count();
+    let before = sessions(&server.log());
     let (ok, _, stderr) = run_with_timeout(track(server, file), Duration::from_secs(120), |pid| {
-        // well into the first motion (the client connects within a second)
-        std::thread::sleep(Duration::from_millis(2500));
+        // well into the first motion: 1 s after the torque session started
+        let deadline = Instant::now() + Duration::from_secs(60);
+        while sessions(&server.log()) == before {
+            assert!(Instant::now() < deadline, "the client never started a torque session");
+            std::thread::sleep(Duration::from_millis(20));
+        }
+        std::thread::sleep(Duration::from_millis(1000));
         // SAFETY: signalling our own child process.
         unsafe { libc::kill(pid as i32, libc::SIGSTOP) };
         std::thread::sleep(Duration::from_millis(200));

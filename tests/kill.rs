@@ -50,13 +50,16 @@ fn collect_killed_at_random_points_keeps_its_dataset_and_resumes() {
     let out = dir.path().join("data");
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let mut before: Vec<u64> = Vec::new();
+    let mut landed = 0;
     for _ in 0..4 {
         let delay = Duration::from_millis(rng.random_range(700..4000));
-        kill_after(collect(&out, 6), delay);
+        let killed = kill_after(collect(&out, 6), delay);
         let seeds = listed_seeds(&out);
         assert!(seeds.starts_with(&before), "a kill lost listed episodes: {before:?} then {seeds:?}");
+        landed += usize::from(killed && !seeds.is_empty() && seeds.len() < 6);
         before = seeds;
     }
+    assert!(landed > 0, "no kill landed mid-collection (after an episode, before the end): retime the kills");
     let finished = collect(&out, 6).output().unwrap();
     assert!(finished.status.success(), "{}", String::from_utf8_lossy(&finished.stderr));
     let seeds = listed_seeds(&out);

@@ -86,9 +86,10 @@ struct FrankaFigures {
     #[cfg(feature = "franka")]
     #[serde(flatten)]
     session: flowram::franka::SessionFigures,
-    /// Commands sent to the hand, and how many it reported as failed.
+    /// Commands sent to the hand, how many it refused or failed, and failed reads of its state.
     gripper_commands: u64,
     gripper_failures: u64,
+    gripper_read_errors: u64,
 }
 
 pub fn run(args: TrackArgs) -> anyhow::Result<()> {
@@ -204,8 +205,10 @@ fn run_on_franka(
         },
         Err(e) => return Err(e.into()),
     };
-    let (gripper_commands, gripper_failures) = backend.gripper_commands();
-    Ok((report, runner, FrankaFigures { robot, session: backend.figures(), gripper_commands, gripper_failures }))
+    let (gripper_commands, gripper_failures, gripper_read_errors) = backend.gripper_commands();
+    let figures =
+        FrankaFigures { robot, session: backend.figures(), gripper_commands, gripper_failures, gripper_read_errors };
+    Ok((report, runner, figures))
 }
 
 #[cfg(not(feature = "franka"))]

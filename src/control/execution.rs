@@ -169,7 +169,7 @@ pub struct Execution {
     gripper_timeout: f64,
     grasp: Option<GraspState>,
     reflex: Option<Reflex>,
-    /// The reference joints when the motion started: where the collision reflex backs off to.
+    /// The measured joints when the motion started: where the collision reflex backs off to.
     start: Option<crate::robot::JointVector>,
     phase: Phase,
 }
@@ -211,7 +211,7 @@ impl Execution {
     pub fn before_tick(&mut self, controller: &mut ArmController, gripper: &mut Gripper, state: &RobotState) {
         match self.phase {
             Phase::Moving => {
-                self.start.get_or_insert(controller.reference().q);
+                self.start.get_or_insert(state.q);
                 let goals = self.plan.goals();
                 if self.next < goals.len()
                     && (self.next == 0 || (controller.reference().q - goals[self.next - 1]).norm() < WAYPOINT_SWITCH)

@@ -9,9 +9,11 @@ use crate::control::backend::{BackendError, Command, Cycle, RobotBackend, RobotM
 use crate::robot::JointVector;
 use crate::runtime::pacing::SchedulingRestore;
 
-/// The robot echoes the command it received in float32: agreement within this (Nm) means it
-/// got the command last sent.
-const ECHO_AGREES: f64 = 1e-3;
+/// The robot echoes the command it received in float32: agreement within a few float32 steps
+/// of the torque means it got the command last sent.
+fn echo_agrees(sent: &JointVector, echo: &JointVector) -> bool {
+    (0..7).all(|i| (sent[i] - echo[i]).abs() <= 4.0 * f64::from(f32::EPSILON) * sent[i].abs().max(1.0))
+}
 
 /// How to reach the robot.
 #[derive(Debug, Clone)]
@@ -175,9 +177,9 @@ impl FrankaBackend {
         self.figures
     }
 
-    /// Commands sent to the hand and how many it reported as failed.
-    pub fn gripper_commands(&self) -> (u64, u64) {
-        self.gripper.as_ref().map_or((0, 0), GripperWorker::commands)
+    /// Commands sent to the hand, how many it refused or failed, and its failed state reads.
+    pub fn gripper_commands(&self) -> (u64, u64, u64) {
+        self.gripper.as_ref().map_or((0, 0, 0), GripperWorker::commands)
     }
 }
 
@@ -241,7 +243,7 @@ impl RobotBackend for FrankaBackend {
                 // Against the command last sent, exact, while the robot's float32 echo of it
                 // agrees; against the echo when it does not (a command the robot never got).
                 let reference = match sent {
-                    Some(sent) if (sent - state.tau_commanded).amax() < ECHO_AGREES => sent,
+                    Some(sent) if echo_agrees(&sent, &state.tau_commanded) => sent,
                     _ => state.tau_commanded,
                 };
                 let out = guard.apply(&command.tau, &reference);

@@ -1,5 +1,5 @@
 //! The Franka Hand on worker threads. Its service is a separate TCP connection whose replies
-//! block (a move or a grasp answers when the fingers stop, with no time-out), so nothing on the
+//! block (a move or a grasp answers when the fingers stop), so nothing on the
 //! control thread may call it: the control callback only publishes the wanted state (an atomic
 //! and an unpark: no lock, no allocation); a command thread moves the fingers on each change,
 //! and a state thread publishes the measured width for the control callback to read.
@@ -14,7 +14,9 @@ use crate::control::backend::BackendError;
 /// Fully open (m) and the finger speed of every move (m/s).
 const OPEN_WIDTH: f64 = 0.08;
 const SPEED: f64 = 0.1;
-/// Grasp force (N); any width between closed and open counts as a grasp.
+/// Grasp force (N). The grasp's tolerances accept any width between closed and open, so the
+/// hand reports a grasp on nothing as a success too: the grasp check is the controller's
+/// (`control::gripper`, from the published width).
 const GRASP_FORCE: f64 = 20.0;
 
 const WANT_OPEN: u8 = 1;
@@ -27,9 +29,11 @@ struct Shared {
     /// Width (m) and its rate (m/s), f64 bits.
     width: AtomicU64,
     speed: AtomicU64,
-    /// Commands sent and commands the hand reported as failed (a grasp on nothing fails).
+    /// Commands sent and commands the hand refused or that failed.
     commands: AtomicU64,
     failures: AtomicU64,
+    /// Failed reads of the hand's state (the width is then the last one read).
+    read_errors: AtomicU64,
     stop: AtomicBool,
 }
 
@@ -42,18 +46,20 @@ pub struct GripperWorker {
 }
 
 impl GripperWorker {
-    /// Connects to the hand at `host` (port 1338) and starts the threads.
+    /// Connects to the hand at `host` (port 1338) and starts the threads. A command is sent
+    /// only when it changes what the fingers are (open if wider than 4 cm when connected).
     pub fn start(host: &str) -> Result<Self, BackendError> {
         let hand = Arc::new(Gripper::new(host).map_err(|e| BackendError::Connect {
             address: format!("{host}:1338 (the hand)"),
             detail: e.to_string(),
         })?);
         let first = hand.read_once().map_err(|e| BackendError::Communication(format!("reading the hand: {e}")))?;
+        let open = first.width > 0.04;
         let shared = Arc::new(Shared::default());
         shared.width.store(first.width.to_bits(), Ordering::Relaxed);
-        // The state thread: blocks on the hand's state stream and publishes the width. It owns
-        // a clone of the connection and ends at the next state after `stop` (never joined, as
-        // its read has no time-out).
+        // The state thread: blocks on the hand's state stream (a read times out after 1 s and
+        // is retried) and publishes the width. It owns a clone of the connection and ends at
+        // the next read after `stop` (never joined).
         {
             let (hand, shared) = (Arc::clone(&hand), Arc::clone(&shared));
             thread::Builder::new()
@@ -61,7 +67,11 @@ impl GripperWorker {
                 .spawn(move || {
                     let mut previous = (first.width, first.time.as_secs_f64());
                     while !shared.stop.load(Ordering::Relaxed) {
-                        let Ok(s) = hand.read_once() else { break };
+                        let Ok(s) = hand.read_once() else {
+                            shared.read_errors.fetch_add(1, Ordering::Relaxed);
+                            thread::sleep(std::time::Duration::from_millis(10));
+                            continue;
+                        };
                         let t = s.time.as_secs_f64();
                         if t > previous.1 {
                             let speed = (s.width - previous.0) / (t - previous.1);
@@ -80,7 +90,7 @@ impl GripperWorker {
                 .spawn(move || command_loop(&hand, &shared))
                 .map_err(|e| BackendError::Communication(format!("starting the hand's command thread: {e}")))?
         };
-        Ok(Self { shared, commander: Some(commander), last_wanted: None })
+        Ok(Self { shared, commander: Some(commander), last_wanted: Some(open) })
     }
 
     /// Asks for the fingers open or closed; acts on changes only. Real-time safe (an atomic
@@ -104,19 +114,20 @@ impl GripperWorker {
         )
     }
 
-    /// Commands sent to the hand and how many it reported as failed.
-    pub fn commands(&self) -> (u64, u64) {
-        (self.shared.commands.load(Ordering::Relaxed), self.shared.failures.load(Ordering::Relaxed))
+    /// Commands sent to the hand, how many it refused or failed, and failed state reads.
+    pub fn commands(&self) -> (u64, u64, u64) {
+        let s = &self.shared;
+        (s.commands.load(Ordering::Relaxed), s.failures.load(Ordering::Relaxed), s.read_errors.load(Ordering::Relaxed))
     }
 }
 
 impl Drop for GripperWorker {
+    /// Tells the threads to end and leaves them: a command in flight returns when the hand
+    /// answers, which a hand that stopped answering never does, and a drop must not hang.
     fn drop(&mut self) {
         self.shared.stop.store(true, Ordering::Relaxed);
         if let Some(t) = self.commander.take() {
             t.thread().unpark();
-            // A move in flight ends when the fingers stop (seconds at most).
-            let _ = t.join();
         }
     }
 }

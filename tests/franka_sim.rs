@@ -160,6 +160,9 @@ fn clean_run_reaches_keyframes_within_the_robots_limits(server: &Server, file: &
     let step = franka["max_received_torque_step"].as_f64().unwrap();
     assert!(step <= 1.0 + 1e-4, "the robot received a torque step of {step} Nm in 1 ms");
     assert!(franka["cycles"].as_u64().unwrap() > 1000, "{franka}");
+    // the controller keeps to the limits itself: the guard only trims rounding-sized excess
+    let trimmed = franka["max_guard_change"].as_f64().unwrap();
+    assert!(trimmed < 1e-3, "the torque guard changed a command by {trimmed} Nm");
     // the hand was told to close and to open again (it starts open: nothing to send first)
     assert_eq!(franka["gripper_commands"].as_u64(), Some(2), "{franka}");
     assert_eq!(franka["gripper_failures"].as_u64(), Some(0), "{franka}");

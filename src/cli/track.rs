@@ -156,11 +156,12 @@ pub fn run(args: TrackArgs) -> anyhow::Result<()> {
     #[cfg(feature = "franka")]
     if let Some(f) = &franka {
         println!(
-            "franka: {} cycles, lowest command success rate {:.3}, largest torque step the robot received {:.3} Nm/ms, {} commands changed by the torque guard, hand: {} commands ({} failed)",
+            "franka: {} cycles, lowest command success rate {:.3}, largest torque step the robot received {:.3} Nm/ms, {} commands changed by the torque guard (at most {:.2e} Nm), hand: {} commands ({} failed)",
             f.session.cycles,
             f.session.min_command_success_rate,
             f.session.max_received_torque_step,
             f.session.guarded_cycles,
+            f.session.max_guard_change,
             f.gripper_commands,
             f.gripper_failures
         );

@@ -42,8 +42,10 @@ pub struct FrankaBackend {
 pub struct SessionFigures {
     /// Control cycles run.
     pub cycles: u64,
-    /// Cycles whose command the torque guard had to change.
+    /// Cycles whose command the torque guard had to change (by more than rounding), and the
+    /// largest change it made (Nm).
     pub guarded_cycles: u64,
+    pub max_guard_change: f64,
     /// Lowest command success rate the robot reported (after each session's first 100 cycles,
     /// its averaging window).
     pub min_command_success_rate: f64,
@@ -249,6 +251,9 @@ impl RobotBackend for FrankaBackend {
                 let out = guard.apply(&command.tau, &reference);
                 sent = Some(out.tau);
                 figures.guarded_cycles += u64::from(out.clamped);
+                if out.non_finite.is_none() {
+                    figures.max_guard_change = figures.max_guard_change.max((out.tau - command.tau).amax());
+                }
                 if let Some(joint) = out.non_finite {
                     failure.get_or_insert(BackendError::NonFiniteTorque { joint });
                 }

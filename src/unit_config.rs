@@ -184,6 +184,12 @@ impl ConfigFile {
         Ok(x)
     }
 
+    /// A boolean (`true` / `false`).
+    pub fn flag(&mut self, field: &str) -> Result<bool, ConfigError> {
+        let value = self.lookup(field)?.clone();
+        value.as_bool().ok_or_else(|| self.error(field, format!("expected true or false, found {value}")))
+    }
+
     /// A plain array of N dimensionless numbers.
     pub fn numbers<const N: usize>(&mut self, field: &str, sign: Sign) -> Result<[f64; N], ConfigError> {
         let value = self.lookup(field)?.clone();

@@ -224,6 +224,10 @@ pub struct FaultsBenchArgs {
     runs: u64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Controller profile (TOML); default controllers/osc.toml
+    /// (controllers/osc-contact-guard.toml turns the contact guards on).
+    #[arg(long)]
+    config: Option<std::path::PathBuf>,
     #[arg(long)]
     json: bool,
 }
@@ -238,7 +242,8 @@ pub fn faults(args: FaultsBenchArgs) -> anyhow::Result<()> {
             .expect("a valid progress template"),
     );
     let t0 = Instant::now();
-    let report = flowram::rollout::faults::fault_runs(args.runs, args.seed, |n| bar.set_position(n))?;
+    let report =
+        flowram::rollout::faults::fault_runs(args.runs, args.seed, args.config.as_deref(), |n| bar.set_position(n))?;
     bar.finish_and_clear();
     let wall_s = t0.elapsed().as_secs_f64();
     if args.json {

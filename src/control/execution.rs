@@ -244,7 +244,7 @@ impl Execution {
                 let c = controller.osc().config();
                 self.error = pose_error(&self.plan.target, controller.tcp());
                 let limit = &c.reflex_external_torque;
-                if let Some(joint) = (0..7).find(|&i| state.tau_ext[i].abs() > limit[i]) {
+                if let Some(joint) = (0..7).find(|&i| c.reflex_enabled && state.tau_ext[i].abs() > limit[i]) {
                     self.reflex = Some(Reflex { joint, torque: state.tau_ext[joint].abs(), threshold: limit[joint] });
                     self.phase = Phase::ReflexPending;
                     return false;

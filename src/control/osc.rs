@@ -230,7 +230,7 @@ impl Osc {
         let mass = &dynamics.mass;
         // The acceleration the external torque adds to the model's: M^-1 tau_ext.
         let external = external.map(|v| if v.is_finite() { v } else { 0.0 });
-        let external_acceleration = if external.iter().all(|&v| v == 0.0) {
+        let external_acceleration = if !self.config.external_torque_in_limits || external.iter().all(|&v| v == 0.0) {
             JointVector::zeros()
         } else {
             mass.cholesky().map_or_else(JointVector::zeros, |c| c.solve(&external))

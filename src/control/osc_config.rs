@@ -62,9 +62,13 @@ pub struct OscConfig {
     pub reached_position: f64,
     pub reached_orientation: f64,
     pub settle_timeout: f64,
-    /// The collision reflex: an external torque above this on any joint (Nm) stops the motion
-    /// where the arm is (`[reflex] external_torque`).
+    /// The collision reflex (`[reflex] enabled`): an external torque above
+    /// `reflex_external_torque` on any joint (Nm) stops the motion and backs the arm off.
+    pub reflex_enabled: bool,
     pub reflex_external_torque: JointVector,
+    /// The joint-limit rows bound the acceleration the joints will have including the measured
+    /// external torque (`[qp] external_torque_in_limits`).
+    pub external_torque_in_limits: bool,
 }
 
 impl OscConfig {
@@ -131,6 +135,8 @@ impl OscConfig {
             reached_position: f.quantity("reached.position", Quantity::Length, Sign::Positive)?,
             reached_orientation: f.quantity("reached.orientation", Quantity::Angle, Sign::Positive)?,
             settle_timeout: f.quantity("reached.settle_timeout", Quantity::Time, Sign::Positive)?,
+            reflex_enabled: f.flag("reflex.enabled")?,
+            external_torque_in_limits: f.flag("qp.external_torque_in_limits")?,
             reflex_external_torque: JointVector::from_column_slice(&f.quantities::<7>(
                 "reflex.external_torque",
                 Quantity::Torque,

@@ -186,11 +186,11 @@ impl KeyframeSource for FaultySource {
 }
 
 /// One fault run from `seed`; adds its counts to `report`.
-fn fault_run(seed: u64, report: &mut FaultReport) -> Result<(), RolloutError> {
+fn fault_run(seed: u64, config: Option<&std::path::Path>, report: &mut FaultReport) -> Result<(), RolloutError> {
     let mut rng = StdRng::seed_from_u64(seed);
     let world = World::load_named("default")?;
     let home = world.arm_state().tcp_in_base;
-    let mut config = load_controller_config(None)?;
+    let mut config = load_controller_config(config)?;
     let qp_timeout = rng.random_bool(0.2);
     if qp_timeout {
         config.time_limit = rng.random_range(5e-6..30e-6);
@@ -281,11 +281,16 @@ fn stop_name(stop: StopReason) -> &'static str {
 
 /// `runs` fault runs, seeds `seed..seed + runs`; `progress` is called after each run. A panic
 /// inside a run is caught and counted.
-pub fn fault_runs(runs: u64, seed: u64, mut progress: impl FnMut(u64)) -> Result<FaultReport, RolloutError> {
+pub fn fault_runs(
+    runs: u64,
+    seed: u64,
+    config: Option<&std::path::Path>,
+    mut progress: impl FnMut(u64),
+) -> Result<FaultReport, RolloutError> {
     let mut report = FaultReport::default();
     for i in 0..runs {
         let mut partial = report.clone();
-        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| fault_run(seed + i, &mut partial))) {
+        match std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| fault_run(seed + i, config, &mut partial))) {
             Ok(result) => {
                 result?;
                 report = partial;

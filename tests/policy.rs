@@ -248,6 +248,101 @@ fn the_instruction_pointer_reads_the_instruction_and_caches_like_the_rest_of_the
 }
 
 #[test]
+fn the_position_pointer_reads_the_instruction_caches_like_the_prefix_and_needs_the_endpoint() {
+    use flowram::policy::inputs::{Augmentation, prefix_inputs, suffix_inputs};
+    let mut config = tiny_config();
+    config.model.position_pointer = true;
+    config.model.instruction_adaln = false;
+    config.flow.prediction = flowram::policy::flow::Prediction::Velocity;
+    let err = config.validate().unwrap_err().to_string();
+    assert!(err.contains("flow.prediction") && err.contains("position_pointer"), "{err}");
+    config.flow.prediction = flowram::policy::flow::Prediction::Endpoint;
+    config.validate().unwrap();
+    let mut no_pointer = config.clone();
+    no_pointer.model.position_pointer = false;
+    no_pointer.flow.pointer_weight = 1.0;
+    let err = no_pointer.validate().unwrap_err().to_string();
+    assert!(err.contains("flow.pointer_weight"), "{err}");
+    let observation = Observation::from_episode(demonstration(), 0).unwrap();
+    let action = [[0.1f32, -0.2, 0.3, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]];
+    let predict = |o: &Observation| -> (Vec<f32>, Vec<f32>) {
+        let mut policy = Policy::random(&config, text()).unwrap();
+        let prepared = policy.prepare(o).unwrap();
+        let observations = [(&prepared, Augmentation::NONE)];
+        let prefix = prefix_inputs(&config, &observations).unwrap();
+        let suffix = suffix_inputs(&config, &observations, &[0], &action, &[0.3], &config.radius_schedule).unwrap();
+        let out = policy.model.forward(&prefix, &suffix).unwrap();
+        let (log_weights, candidates) = out.pointer.expect("the training forward returns the pointer's attention");
+        let n = config.observation.semantic_tokens + config.observation.geometric_tokens;
+        assert_eq!((log_weights.dims(), candidates.dims()), (&[1, n][..], &[1, n, 3][..]));
+        let total: f32 = log_weights.exp().unwrap().sum_all().unwrap().to_scalar().unwrap();
+        assert!((total - 1.0).abs() < 1e-4, "the attention sums to {total}");
+        let whole = out.velocity.to_vec2::<f32>().unwrap();
+        let encoded = policy.model.encode(&prefix).unwrap();
+        assert!(encoded.pointer.is_some(), "the encoding keeps the pointer's memory");
+        let cached = policy.model.step(&encoded.repeat(1).unwrap(), &suffix).unwrap();
+        (whole[0].clone(), cached.velocity.to_vec2::<f32>().unwrap()[0].clone())
+    };
+    let (whole, cached) = predict(&observation);
+    for (a, b) in whole.iter().zip(&cached) {
+        assert!((a - b).abs() < 1e-4, "training forward {whole:?}, cached inference {cached:?}");
+    }
+    // Without the AdaLN the instruction reaches the position through the pointer's query (and
+    // the scan); another instruction moves the predicted position.
+    let other = Observation { instruction: "open the middle drawer".into(), ..observation.clone() };
+    assert_ne!(other.instruction, observation.instruction);
+    let (moved, _) = predict(&other);
+    assert!(whole[..3].iter().zip(&moved[..3]).any(|(a, b)| (a - b).abs() > 1e-6), "{whole:?} vs {moved:?}");
+}
+
+#[test]
+fn point_colour_adds_a_function_of_each_feature_pixels_raw_colour() {
+    use flowram::policy::inputs::{Augmentation, prefix_inputs};
+    let plain = tiny_config();
+    let mut coloured = plain.clone();
+    coloured.model.point_colour = true;
+    let observation = Observation::from_episode(demonstration(), 0).unwrap();
+    // Same seed: the variables both models share (the image encoder) start from the same values,
+    // so the difference of their features is the colour MLP alone.
+    let features =
+        |config: &PolicyConfig, images: Option<&candle_core::Tensor>| -> (Vec<Vec<f32>>, candle_core::Tensor) {
+            let mut policy = Policy::random(config, text()).unwrap();
+            let prepared = policy.prepare(&observation).unwrap();
+            let mut prefix = prefix_inputs(config, &[(&prepared, Augmentation::NONE)]).unwrap();
+            if let Some(images) = images {
+                prefix.images = images.clone();
+            }
+            (policy.model.image_features(&prefix.images).unwrap().to_vec2().unwrap(), prefix.images)
+        };
+    let (base, images) = features(&plain, None);
+    // Paint the first camera's top-left 4 x 4 cell and the one beside it the same flat colour, and
+    // the cell below them another.
+    let stride = plain.observation.feature_stride;
+    let mut pixels = images.to_dtype(candle_core::DType::U8).unwrap().flatten_all().unwrap().to_vec1::<u8>().unwrap();
+    let size = plain.observation.image_size;
+    for (row0, col0, rgb) in [(0, 0, [200u8, 10, 10]), (0, stride, [200, 10, 10]), (stride, 0, [100, 5, 5])] {
+        for ch in 0..3 {
+            for r in row0..row0 + stride {
+                for c in col0..col0 + stride {
+                    pixels[(ch * size + r) * size + c] = rgb[ch];
+                }
+            }
+        }
+    }
+    let painted = candle_core::Tensor::from_vec(pixels, images.shape(), images.device()).unwrap();
+    let (base_painted, _) = features(&plain, Some(&painted));
+    let (with_colour, _) = features(&coloured, Some(&painted));
+    let cells_per_row = size / stride;
+    let diff =
+        |cell: usize| -> Vec<f32> { with_colour[cell].iter().zip(&base_painted[cell]).map(|(a, b)| a - b).collect() };
+    let (a, b, c) = (diff(0), diff(1), diff(cells_per_row));
+    assert!(a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-5), "equal colours, different colour features");
+    assert!(a.iter().zip(&c).any(|(x, y)| (x - y).abs() > 1e-3), "red and its half-brightness pair look the same");
+    assert!(a.iter().any(|x| x.abs() > 1e-3), "the colour feature is zero");
+    assert_ne!(base[0], base_painted[0], "painting did not change the image");
+}
+
+#[test]
 fn configs_written_before_the_conditioning_options_load_with_the_papers_choices() {
     // A checkpoint's config.json from before model.instruction_adaln, flow.prediction and
     // flow.time_sampling existed: it must load, and mean what it meant then.

@@ -78,6 +78,23 @@ pub struct ModelConfig {
     /// must carry the instruction to the right tokens.
     #[serde(default)]
     pub instruction_pointer: bool,
+    /// Read the predicted position out as a pointer into the scene: a softmax attention whose
+    /// query is the action token's output plus the instruction (pooled as `instruction_pooling`
+    /// says) and whose keys are the semantic and geometric tokens; the predicted endpoint's
+    /// position is the attention-weighted mean of those tokens' positions plus the position
+    /// head's offset. Choosing "the red button" becomes choosing tokens, a classification with
+    /// a direct gradient, as Act3D's ghost points and RVT's heatmaps point at the scene. Needs
+    /// `flow.prediction = "endpoint"` (the pointer gives a point, not a velocity). Off (the
+    /// paper): the position head regresses the position from the action token alone.
+    #[serde(default)]
+    pub position_pointer: bool,
+    /// Add an MLP of each feature pixel's raw mean colour (its stride x stride image pixels,
+    /// before any normalisation) to the image features every token gathers. The image encoder's
+    /// per-pixel LayerNorms remove much of a colour's brightness, and half of RLBench's palette
+    /// is pairs that differ only in brightness (red and maroon, blue and navy, lime and green,
+    /// white, silver, gray and black). Off (the paper): tokens carry the encoder's features only.
+    #[serde(default)]
+    pub point_colour: bool,
 }
 
 /// How the instruction AdaLN (`model.instruction_adaln`) pools the instruction's tokens.
@@ -106,6 +123,20 @@ pub struct FlowConfig {
     /// `{ kind = "logit_normal", mean = 0.0, std = 1.0 }`.
     #[serde(default)]
     pub time_sampling: FlowTimeSampling,
+    /// Weight of the position pointer's own loss (`model.position_pointer`): the cross-entropy of
+    /// its attention against a soft target on the tokens near the keyframe's position
+    /// (softmax of -d^2 / (2 pointer_sigma^2), d in metres), added to the total. It supervises the
+    /// choice of object at every flow time, where the flow loss does so only at early times, when
+    /// a_t is mostly noise. 0 (the paper has no pointer): none.
+    #[serde(default)]
+    pub pointer_weight: f64,
+    /// Metres; the width of that soft target.
+    #[serde(default = "pointer_sigma")]
+    pub pointer_sigma: f64,
+}
+
+fn pointer_sigma() -> f64 {
+    0.02
 }
 
 /// Training.
@@ -210,12 +241,28 @@ impl PolicyConfig {
                 return bad("observation.cameras", "distinct, non-empty camera names", format!("{:?}", o.cameras));
             }
         }
+        if self.model.position_pointer && self.flow.prediction != Prediction::Endpoint {
+            return bad(
+                "flow.prediction",
+                "\"endpoint\" when model.position_pointer = true (the pointer predicts the endpoint's position)",
+                format!("{:?}", self.flow.prediction),
+            );
+        }
+        if self.flow.pointer_weight > 0.0 && !self.model.position_pointer {
+            return bad(
+                "flow.pointer_weight",
+                "0 unless model.position_pointer = true (it is the pointer's loss)",
+                self.flow.pointer_weight.to_string(),
+            );
+        }
         self.radius_schedule.validate()?;
         self.flow.time_sampling.validate()?;
         let t = &self.train;
         for (field, v, ok) in [
             ("flow.cfm_weight", self.flow.cfm_weight, self.flow.cfm_weight >= 0.0),
             ("flow.open_weight", self.flow.open_weight, self.flow.open_weight >= 0.0),
+            ("flow.pointer_weight", self.flow.pointer_weight, self.flow.pointer_weight >= 0.0),
+            ("flow.pointer_sigma", self.flow.pointer_sigma, self.flow.pointer_sigma > 0.0),
             ("train.learning_rate", t.learning_rate, t.learning_rate > 0.0),
             ("train.weight_decay", t.weight_decay, t.weight_decay >= 0.0),
             ("train.min_learning_rate", t.min_learning_rate, (0.0..=t.learning_rate).contains(&t.min_learning_rate)),

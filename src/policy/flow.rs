@@ -254,6 +254,33 @@ pub fn flow_matching_loss(
     Ok((total, cfm, bce))
 }
 
+/// The position pointer's loss (`flow.pointer_weight`): the cross-entropy of its log attention
+/// `log_weights` [B, N] over candidates at normalised positions `candidates` [B, N, 3] against
+/// the soft target softmax(-d^2 / (2 sigma^2)), d the distance in metres from each candidate to
+/// the keyframe position `target` [B, 3] (normalised; `half_extent` [3] metres per normalised
+/// unit). A scalar, averaged over the batch.
+pub fn pointer_loss(
+    log_weights: &Tensor,
+    candidates: &Tensor,
+    target: &Tensor,
+    half_extent: [f32; 3],
+    sigma: f64,
+) -> Result<Tensor> {
+    let (b, n) = log_weights.dims2()?;
+    if candidates.dims() != [b, n, 3] || target.dims() != [b, 3] {
+        return Err(PolicyError::Invalid(format!(
+            "pointer_loss: log weights {:?}, candidates {:?} and target {:?} must be [B, N], [B, N, 3], [B, 3]",
+            log_weights.dims(),
+            candidates.dims(),
+            target.dims()
+        )));
+    }
+    let scale = Tensor::from_vec(half_extent.to_vec(), (1, 1, 3), candidates.device())?;
+    let d2 = candidates.broadcast_sub(&target.unsqueeze(1)?)?.broadcast_mul(&scale)?.sqr()?.sum(2)?;
+    let soft = candle_nn::ops::softmax_last_dim(&d2.affine(-1.0 / (2.0 * sigma * sigma), 0.0)?)?.detach();
+    Ok(soft.mul(log_weights)?.sum(1)?.neg()?.mean_all()?)
+}
+
 /// Euler integration of the learned velocity field from noise to an action
 /// (Algorithm 2, accumulating): `a <- a + v(a, k/K) / K` for `k = 0..K`.
 ///
@@ -294,6 +321,28 @@ mod tests {
 
     fn t2(values: &[f32], rows: usize) -> Tensor {
         Tensor::from_slice(values, (rows, values.len() / rows), &Device::Cpu).unwrap()
+    }
+
+    #[test]
+    fn the_pointer_loss_rewards_attention_on_the_candidates_near_the_keyframe() {
+        let d = Device::Cpu;
+        // Two samples, three candidates: (0, 0, 0), (0.1, 0, 0) and (1, 0, 0) normalised; 0.3 m per
+        // unit, so they are 0, 3 and 30 cm from a keyframe at the origin.
+        let candidates = Tensor::from_slice(&[0f32, 0., 0., 0.1, 0., 0., 1., 0., 0.], (1, 3, 3), &d)
+            .unwrap()
+            .repeat((2, 1, 1))
+            .unwrap();
+        let target = Tensor::zeros((2, 3), DType::F32, &d).unwrap();
+        let loss = |weights: [f32; 3]| -> f32 {
+            let log = Tensor::from_slice(&weights, (1, 3), &d).unwrap().log().unwrap().repeat((2, 1)).unwrap();
+            pointer_loss(&log, &candidates, &target, [0.3; 3], 0.02).unwrap().to_scalar::<f32>().unwrap()
+        };
+        let (near, next, far) = (loss([0.98, 0.01, 0.01]), loss([0.01, 0.98, 0.01]), loss([0.01, 0.01, 0.98]));
+        assert!(near < next && next < far, "near {near}, next {next}, far {far}");
+        // The target is almost all on the candidate at the keyframe: e^(-9/8) of it on the next.
+        assert!((near - (-(0.98f32).ln())).abs() < 0.6, "{near}");
+        let wrong = pointer_loss(&Tensor::zeros((2, 4), DType::F32, &d).unwrap(), &candidates, &target, [0.3; 3], 0.02);
+        assert!(wrong.unwrap_err().to_string().contains("pointer_loss"));
     }
 
     fn max_abs_diff(a: &Tensor, b: &Tensor) -> f32 {

@@ -99,6 +99,38 @@ pub struct EncodedObservation {
     pub state: StackState,
     /// The prefix condition [B, C].
     pub condition: Tensor,
+    /// What the position pointer keeps of the prefix (`model.position_pointer`).
+    pub pointer: Option<PointerMemory>,
+}
+
+/// The prefix's part of the position pointer (`model.position_pointer`): the semantic tokens'
+/// keys and positions and the instruction's part of the query.
+#[derive(Debug, Clone)]
+pub struct PointerMemory {
+    /// [B, N1, C]
+    keys: Tensor,
+    /// [B, N1, 3] normalised positions.
+    xyz: Tensor,
+    /// [B, C]
+    query: Tensor,
+}
+
+impl PointerMemory {
+    fn index_select(&self, rows: &Tensor) -> Result<Self> {
+        Ok(Self {
+            keys: self.keys.index_select(rows, 0)?,
+            xyz: self.xyz.index_select(rows, 0)?,
+            query: self.query.index_select(rows, 0)?,
+        })
+    }
+
+    fn repeat(&self, n: usize) -> Result<Self> {
+        Ok(Self {
+            keys: self.keys.repeat((n, 1, 1))?,
+            xyz: self.xyz.repeat((n, 1, 1))?,
+            query: self.query.repeat((n, 1))?,
+        })
+    }
 }
 
 impl EncodedObservation {
@@ -115,6 +147,7 @@ impl EncodedObservation {
             features: self.features.clone(),
             state: self.state.repeat(n)?,
             condition: self.condition.repeat((n, 1))?,
+            pointer: self.pointer.as_ref().map(|p| p.repeat(n)).transpose()?,
         })
     }
 }
@@ -126,6 +159,9 @@ pub struct Velocity {
     pub velocity: Tensor,
     /// [B]
     pub open_logit: Tensor,
+    /// With `model.position_pointer`: the pointer's log attention over its candidate tokens
+    /// [B, N1 + N2] and their normalised positions [B, N1 + N2, 3] (for its loss).
+    pub pointer: Option<(Tensor, Tensor)>,
 }
 
 /// The instruction-pointer token (`model.instruction_pointer`): one attention of the instruction
@@ -157,6 +193,54 @@ impl InstructionPointer {
     }
 }
 
+/// The position pointer (`model.position_pointer`): the predicted position as an attention over
+/// the scene tokens' positions.
+#[derive(Debug, Clone)]
+struct PositionPointer {
+    query: Linear,
+    instruction: Linear,
+    key: Linear,
+}
+
+impl PositionPointer {
+    fn new(c: usize, vb: VarBuilder) -> Result<Self> {
+        Ok(Self {
+            query: candle_nn::linear_no_bias(c, c, vb.pp("query"))?,
+            instruction: candle_nn::linear(TEXT_HIDDEN_SIZE, c, vb.pp("instruction"))?,
+            key: candle_nn::linear_no_bias(c, c, vb.pp("key"))?,
+        })
+    }
+
+    /// semantic tokens [B, N1, C] at positions [B, N1, 3], the pooled instruction [B, 384].
+    fn memory(&self, semantic: &Tensor, xyz: &Tensor, instruction: &Tensor) -> Result<PointerMemory> {
+        Ok(PointerMemory {
+            keys: self.key.forward(semantic)?,
+            xyz: xyz.clone(),
+            query: self.instruction.forward(instruction)?,
+        })
+    }
+
+    /// The pointed position [B, 3]: the softmax over the semantic and geometric tokens (keys
+    /// against the action token's output `last` [B, C] plus the instruction) of their positions;
+    /// with the log attention [B, N] and the candidates' positions [B, N, 3].
+    fn point(
+        &self,
+        memory: &PointerMemory,
+        geometric: &Tensor,
+        geometric_xyz: &Tensor,
+        last: &Tensor,
+    ) -> Result<(Tensor, Tensor, Tensor)> {
+        let c = last.dim(1)?;
+        let keys = Tensor::cat(&[&memory.keys, &self.key.forward(geometric)?], 1)?;
+        let xyz = Tensor::cat(&[&memory.xyz, geometric_xyz], 1)?;
+        let q = self.query.forward(last)?.add(&memory.query)?.unsqueeze(1)?;
+        let scores = q.matmul(&keys.transpose(1, 2)?.contiguous()?)?.affine(1.0 / (c as f64).sqrt(), 0.0)?;
+        let log_weights = candle_nn::ops::log_softmax(&scores, 2)?;
+        let pointed = log_weights.exp()?.matmul(&xyz)?.squeeze(1)?;
+        Ok((pointed, log_weights.squeeze(1)?, xyz))
+    }
+}
+
 /// The FlowRAM network. Weights live in the `VarBuilder`'s storage (a `VarMap` for training).
 #[derive(Debug, Clone)]
 pub struct FlowRam {
@@ -173,6 +257,10 @@ pub struct FlowRam {
     instruction_scores: Option<Linear>,
     /// `model.instruction_pointer`.
     pointer: Option<InstructionPointer>,
+    /// `model.position_pointer`.
+    position_pointer: Option<PositionPointer>,
+    /// `model.point_colour`: raw mean colour of a feature pixel -> C.
+    colour_mlp: Option<Mlp>,
     time_mlp: Mlp,
     mamba: MambaStack,
     position_head: Mlp,
@@ -211,7 +299,9 @@ impl FlowRam {
             } else {
                 None
             },
-            instruction_scores: if (config.model.instruction_adaln || config.model.instruction_pointer)
+            instruction_scores: if (config.model.instruction_adaln
+                || config.model.instruction_pointer
+                || config.model.position_pointer)
                 && config.model.instruction_pooling == InstructionPooling::Attention
             {
                 Some(candle_nn::linear(TEXT_HIDDEN_SIZE, 1, vb.pp("instruction_scores"))?)
@@ -223,6 +313,12 @@ impl FlowRam {
             } else {
                 None
             },
+            position_pointer: if config.model.position_pointer {
+                Some(PositionPointer::new(c, vb.pp("position_pointer"))?)
+            } else {
+                None
+            },
+            colour_mlp: if config.model.point_colour { Some(Mlp::new(3, c, c, vb.pp("colour_mlp"))?) } else { None },
             time_mlp: Mlp::new(c, c, c, vb.pp("time_mlp"))?,
             mamba: MambaStack::new(&mamba_config, vb.pp("mamba"))?,
             position_head: Mlp::new(c, c, 3, vb.pp("position_head"))?,
@@ -265,20 +361,41 @@ impl FlowRam {
                 + if last_output { mamba.layer_flops_per_token(true) - mamba.layer_flops_per_token(false) } else { 0.0 }
         };
         let pointer = usize::from(self.pointer.is_some());
-        let prefix = 2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c) as f64
+        let cells = (cameras * (o.image_size / o.feature_stride).pow(2)) as f64;
+        let colour = if self.colour_mlp.is_some() { cells * 2.0 * (3 * c + c * c) as f64 } else { 0.0 };
+        let prefix = colour
+            + 2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c) as f64
             + 2.0 * ((o.semantic_tokens + 2) * c * c) as f64 * pointer as f64
             + scan(o.language_tokens + o.semantic_tokens + pointer, false);
-        let heads = 2.0 * (3.0 * (c * c) as f64 + (c * (3 + 6 + 1)) as f64);
+        let mut heads = 2.0 * (3.0 * (c * c) as f64 + (c * (3 + 6 + 1)) as f64);
+        let mut pointer_prefix = 0.0;
+        if self.position_pointer.is_some() {
+            // Keys of the semantic tokens and the instruction's query once; per step the geometric
+            // tokens' keys, the query, the scores and the weighted mean of the positions.
+            pointer_prefix = 2.0 * (o.semantic_tokens * c * c + TEXT_HIDDEN_SIZE * c) as f64;
+            let n = (o.semantic_tokens + o.geometric_tokens) as f64;
+            heads += 2.0 * ((o.geometric_tokens + 1) * c * c) as f64 + 2.0 * n * (c + 3) as f64;
+        }
         let step = 2.0 * (ACTION_DIMS * c) as f64 + 2.0 * (c * c) as f64 + scan(o.geometric_tokens + 1, true) + heads;
-        encoder + prefix + steps as f64 * step
+        encoder + prefix + pointer_prefix + steps as f64 * step
     }
 
     /// Image features of every feature pixel, [B * cams * cells, C] (row order: sample, camera,
-    /// row, column).
+    /// row, column); with `model.point_colour`, plus the colour MLP of the pixel's mean raw colour.
     pub fn image_features(&self, images: &Tensor) -> Result<Tensor> {
         let f = self.image_encoder.forward_channels_last(images)?;
         let (n, h, w, c) = f.dims4()?;
-        Ok(f.reshape((n * h * w, c))?)
+        let f = f.reshape((n * h * w, c))?;
+        match &self.colour_mlp {
+            None => Ok(f),
+            Some(mlp) => {
+                // [N, 3, H, W] u8 -> mean over each stride x stride cell, in [-1, 1].
+                let stride = self.config.observation.feature_stride;
+                let rgb = images.to_dtype(candle_core::DType::F32)?.affine(1.0 / 127.5, -1.0)?.avg_pool2d(stride)?;
+                let cells = rgb.permute((0, 2, 3, 1))?.contiguous()?.reshape((n * h * w, 3))?;
+                Ok(f.add(&mlp.forward(&cells)?)?)
+            }
+        }
     }
 
     fn type_embedding(&self, which: usize) -> Result<Tensor> {
@@ -291,8 +408,13 @@ impl FlowRam {
         Ok(g.reshape((batch, n / batch, c))?)
     }
 
-    /// Prefix tokens [B, Lt + N1 (+ 1 pointer), C] and the prefix condition [B, C].
-    fn prefix_tokens(&self, features: &Tensor, inputs: &PrefixInputs) -> Result<(Tensor, Tensor)> {
+    /// Prefix tokens [B, Lt + N1 (+ 1 pointer), C], the prefix condition [B, C] and the position
+    /// pointer's memory.
+    fn prefix_tokens(
+        &self,
+        features: &Tensor,
+        inputs: &PrefixInputs,
+    ) -> Result<(Tensor, Tensor, Option<PointerMemory>)> {
         let c = self.config.model.channels;
         let b = inputs.proprio.dim(0)?;
         let language = self.language_proj.forward(&inputs.language)?.broadcast_add(&self.type_embedding(LANGUAGE)?)?;
@@ -302,6 +424,10 @@ impl FlowRam {
         let instruction = match &self.instruction_scores {
             None => inputs.instruction.clone(),
             Some(scores) => attention_pool(&inputs.language, scores)?,
+        };
+        let memory = match &self.position_pointer {
+            Some(p) => Some(p.memory(&semantic, &inputs.semantic_xyz, &instruction)?),
+            None => None,
         };
         let tokens = match &self.pointer {
             Some(pointer) => {
@@ -314,7 +440,7 @@ impl FlowRam {
         if let Some(mlp) = &self.instruction_mlp {
             condition = condition.add(&mlp.forward(&instruction)?)?;
         }
-        Ok((tokens, condition))
+        Ok((tokens, condition, memory))
     }
 
     /// The prefix's tokens before the scan, [B, Lt + N1 (+ 1 pointer), C] (for tests and probes).
@@ -349,10 +475,19 @@ impl FlowRam {
         Ok((tokens, condition))
     }
 
-    fn heads(&self, last: &Tensor) -> Result<Velocity> {
-        let velocity = Tensor::cat(&[self.position_head.forward(last)?, self.rotation_head.forward(last)?], 1)?;
+    /// The heads on the action token's output `last` [B, C]; with the position pointer, `pointer`
+    /// holds its memory and the suffix's geometric tokens [B, N2, C] and positions [B, N2, 3].
+    fn heads(&self, last: &Tensor, pointer: Option<(&PointerMemory, &Tensor, &Tensor)>) -> Result<Velocity> {
+        let mut position = self.position_head.forward(last)?;
+        let mut attention = None;
+        if let (Some(p), Some((memory, geometric, xyz))) = (&self.position_pointer, pointer) {
+            let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last)?;
+            position = position.add(&pointed)?;
+            attention = Some((log_weights, candidates));
+        }
+        let velocity = Tensor::cat(&[position, self.rotation_head.forward(last)?], 1)?;
         let open_logit = self.open_head.forward(last)?.squeeze(1)?;
-        Ok(Velocity { velocity, open_logit })
+        Ok(Velocity { velocity, open_logit, pointer: attention })
     }
 
     /// Training forward, differentiable: the whole sequence in one pass. The suffix may hold K
@@ -361,7 +496,7 @@ impl FlowRam {
     /// are computed once per observation and the prefix tokens repeated.
     pub fn forward(&self, prefix: &PrefixInputs, suffix: &SuffixInputs) -> Result<Velocity> {
         let features = self.image_features(&prefix.images)?;
-        let (mut p_tokens, mut p_cond) = self.prefix_tokens(&features, prefix)?;
+        let (mut p_tokens, mut p_cond, mut memory) = self.prefix_tokens(&features, prefix)?;
         let (observations, samples) = (p_cond.dim(0)?, suffix.action.dim(0)?);
         if samples != observations {
             if observations == 0 || !samples.is_multiple_of(observations) {
@@ -374,27 +509,34 @@ impl FlowRam {
             let owner = Tensor::from_vec(owner, samples, p_cond.device())?;
             p_tokens = p_tokens.index_select(&owner, 0)?;
             p_cond = p_cond.index_select(&owner, 0)?;
+            memory = memory.map(|m| m.index_select(&owner)).transpose()?;
         }
         let (s_tokens, s_cond) = self.suffix_tokens(&features, &p_cond, suffix)?;
         let (lp, ls) = (p_tokens.dim(1)?, s_tokens.dim(1)?);
-        let x = Tensor::cat(&[p_tokens, s_tokens], 1)?;
+        let geometric = s_tokens.narrow(1, 0, ls - 1)?;
+        let x = Tensor::cat(&[&p_tokens, &s_tokens], 1)?;
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
-        self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?)
+        let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
+        self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer)
     }
 
     /// Inference: encodes the observation once (image features, prefix scan state).
     pub fn encode(&self, prefix: &PrefixInputs) -> Result<EncodedObservation> {
         let features = self.image_features(&prefix.images)?.detach();
-        let (tokens, condition) = self.prefix_tokens(&features, prefix)?;
+        let (tokens, condition, pointer) = self.prefix_tokens(&features, prefix)?;
         let state = self.mamba.forward_state(&tokens, &Conditioning::Shared(condition.clone()), None)?;
-        Ok(EncodedObservation { features, state, condition })
+        let pointer =
+            pointer.map(|m| PointerMemory { keys: m.keys.detach(), xyz: m.xyz.detach(), query: m.query.detach() });
+        Ok(EncodedObservation { features, state, condition, pointer })
     }
 
     /// Inference: one flow step from the cached prefix.
     pub fn step(&self, encoded: &EncodedObservation, suffix: &SuffixInputs) -> Result<Velocity> {
         let (tokens, condition) = self.suffix_tokens(&encoded.features, &encoded.condition, suffix)?;
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
-        self.heads(&last)
+        let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
+        let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
+        self.heads(&last, pointer)
     }
 }
 

@@ -22,7 +22,7 @@ use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
 use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::config::PolicyConfig;
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::flow::{LossWeights, flow_matching_loss, flow_training_sample};
+use crate::policy::flow::{LossWeights, flow_matching_loss, flow_training_sample, pointer_loss};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, suffix_inputs};
 use crate::policy::network::init::seeded_var_builder;
 use crate::policy::network::model::{FlowRam, device};
@@ -128,7 +128,14 @@ impl Trainer {
         let out = self.model.forward(&prefix, &suffix)?;
         let weights = LossWeights { cfm: config.flow.cfm_weight, open: config.flow.open_weight };
         let open_target = Tensor::from_vec(opens, b * k, &device())?;
-        let (total, cfm, bce) = flow_matching_loss(&out.velocity, &target, &out.open_logit, &open_target, &weights)?;
+        let (mut total, cfm, bce) =
+            flow_matching_loss(&out.velocity, &target, &out.open_logit, &open_target, &weights)?;
+        if let (Some((log_weights, candidates)), true) = (&out.pointer, config.flow.pointer_weight > 0.0) {
+            let half_extent: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / 2.0);
+            let position = a1.narrow(1, 0, 3)?;
+            let pointer = pointer_loss(log_weights, candidates, &position, half_extent, config.flow.pointer_sigma)?;
+            total = total.add(&pointer.affine(config.flow.pointer_weight, 0.0)?)?;
+        }
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;
         self.step = step;

@@ -160,9 +160,13 @@ fn clean_run_reaches_keyframes_within_the_robots_limits(server: &Server, file: &
     let step = franka["max_received_torque_step"].as_f64().unwrap();
     assert!(step <= 1.0 + 1e-4, "the robot received a torque step of {step} Nm in 1 ms");
     assert!(franka["cycles"].as_u64().unwrap() > 1000, "{franka}");
-    // the controller keeps to the limits itself: the guard only trims rounding-sized excess
+    // the controller keeps to the limits itself: the guard only trims rounding-sized excess,
+    // unless the robot lost commands (a loaded machine slows the Python server: its success rate
+    // then drops below 1 and the guard measures the rate from the torque the robot last got,
+    // which is its job, and the received step above stays within the limit)
     let trimmed = franka["max_guard_change"].as_f64().unwrap();
-    assert!(trimmed < 1e-3, "the torque guard changed a command by {trimmed} Nm");
+    let lost = franka["min_command_success_rate"].as_f64().unwrap() < 1.0;
+    assert!(trimmed < 1e-3 || lost, "the torque guard changed a command by {trimmed} Nm with no command lost");
     // the hand was told to close and to open again (it starts open: nothing to send first)
     assert_eq!(franka["gripper_commands"].as_u64(), Some(2), "{franka}");
     assert_eq!(franka["gripper_failures"].as_u64(), Some(0), "{franka}");

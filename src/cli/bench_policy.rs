@@ -397,7 +397,7 @@ pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
         cameras: args.learned.cameras.clone(),
         shard,
     };
-    let mut actor = args.learned.load_actor()?;
+    let mut actor = args.learned.load_actor(&args.tasks.iter().map(String::as_str).collect::<Vec<_>>())?;
     // Loaded before any episode runs, so that a bad --baseline fails at once.
     let mut baseline_actor = args.baseline.as_deref().map(|path| args.learned.load_actor_from(path)).transpose()?;
     let mut record = SuccessRecord::new(&actor, &task_list, &options)?;

@@ -96,7 +96,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         _ if args.realtime => {
             anyhow::ensure!(args.video.is_none(), "--video records in lock-step only; drop it or --realtime");
             anyhow::ensure!(args.policy != ActorKind::Idle, "--realtime runs --policy expert or flowram");
-            let mut loaded = if args.policy == ActorKind::Flowram { Some(args.learned.load_actor()?) } else { None };
+            let mut loaded = if args.policy == ActorKind::Flowram {
+                Some(args.learned.load_actor(&[args.task.as_str()])?)
+            } else {
+                None
+            };
             let options = RealtimeOptions {
                 latency_ticks: args.latency_ms,
                 max_keyframes: if loaded.is_some() { args.learned.max_keyframes } else { 100 },
@@ -119,7 +123,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
             run_episode(task.as_ref(), &mut world, variation, args.seed, Actor::Idle { seconds: 5 }, None)?
         }
         ActorKind::Flowram => {
-            let mut actor = args.learned.load_actor()?;
+            let mut actor = args.learned.load_actor(&[args.task.as_str()])?;
             let size = actor.policy.config().observation.image_size;
             let (mut rig, cameras) = camera_rig(&world, size, Visuals::Full, &args.learned.cameras)?;
             let policy = Actor::Policy { policy: &mut actor, max_keyframes: args.learned.max_keyframes };

@@ -10,8 +10,9 @@ use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
 /// How a learned policy runs closed loop.
 #[derive(Debug, Args)]
 pub struct LearnedArgs {
-    /// Run folder (runs/NAME) or checkpoint folder of a trained policy [default: the checkpoint
-    /// shipped in models/policy/pretrained/ten-tasks; five-tasks is beside it].
+    /// Run folder (runs/NAME) or checkpoint folder of a trained policy [default: the shipped
+    /// checkpoint for the task: models/policy/pretrained/five-tasks for open_drawer,
+    /// push_buttons, slide_block, close_jar and stack_blocks, ten-tasks for the others].
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
     /// Euler steps (default: the checkpoint's flow.sampling_steps).
@@ -30,12 +31,13 @@ pub struct LearnedArgs {
 }
 
 impl LearnedArgs {
-    /// Loads the checkpoint (`--checkpoint`, else the shipped one), with the sampling options.
-    pub fn load_actor(&self) -> anyhow::Result<FlowRamActor> {
+    /// Loads the checkpoint (`--checkpoint`, else the shipped one for `tasks`), with the sampling
+    /// options.
+    pub fn load_actor(&self, tasks: &[&str]) -> anyhow::Result<FlowRamActor> {
         let checkpoint = match &self.checkpoint {
             Some(path) => path.clone(),
             None => {
-                let shipped = shipped_checkpoint();
+                let shipped = shipped_checkpoint(tasks);
                 anyhow::ensure!(
                     shipped.is_dir(),
                     "no --checkpoint given and the shipped checkpoint {} is missing: pass --checkpoint runs/NAME \
@@ -62,7 +64,36 @@ impl LearnedArgs {
     }
 }
 
-/// The five-task checkpoint shipped with the project (see its model card).
-pub fn shipped_checkpoint() -> PathBuf {
-    flowram::deps::models_dir().join("policy/pretrained/ten-tasks")
+/// The checkpoints shipped in `models/policy/pretrained/` with the tasks each was trained on
+/// (`None`: every task), in order of preference. The five-task one succeeds more often on its
+/// five tasks (both model cards); the ten-task one is the only one that knows the other five.
+const SHIPPED: [(&str, Option<&[&str]>); 2] = [
+    ("five-tasks", Some(&["open_drawer", "push_buttons", "slide_block", "close_jar", "stack_blocks"])),
+    ("ten-tasks", None),
+];
+
+/// The shipped checkpoint for a run of `tasks`: the first of [`SHIPPED`] trained on all of them.
+pub fn shipped_checkpoint(tasks: &[&str]) -> PathBuf {
+    let name = SHIPPED
+        .iter()
+        .find(|(_, trained)| trained.is_none_or(|trained| tasks.iter().all(|task| trained.contains(task))))
+        .map_or("ten-tasks", |(name, _)| name);
+    flowram::deps::models_dir().join("policy/pretrained").join(name)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_run_gets_the_shipped_checkpoint_trained_on_all_its_tasks() {
+        let name = |tasks: &[&str]| shipped_checkpoint(tasks).file_name().unwrap().to_string_lossy().into_owned();
+        assert_eq!(name(&["push_buttons"]), "five-tasks");
+        assert_eq!(name(&["open_drawer", "stack_blocks"]), "five-tasks");
+        assert_eq!(name(&["turn_tap"]), "ten-tasks");
+        assert_eq!(name(&["open_drawer", "turn_tap"]), "ten-tasks");
+        for (name, _) in SHIPPED {
+            assert!(flowram::deps::models_dir().join("policy/pretrained").join(name).join("config.json").is_file());
+        }
+    }
 }

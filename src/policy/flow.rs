@@ -339,8 +339,11 @@ mod tests {
         };
         let (near, next, far) = (loss([0.98, 0.01, 0.01]), loss([0.01, 0.98, 0.01]), loss([0.01, 0.01, 0.98]));
         assert!(near < next && next < far, "near {near}, next {next}, far {far}");
-        // The target is almost all on the candidate at the keyframe: e^(-9/8) of it on the next.
-        assert!((near - (-(0.98f32).ln())).abs() < 0.6, "{near}");
+        // The soft target: weights 1 : e^(-9/8) : e^(-112.5) on the three (d^2 / (2 sigma^2) =
+        // 0, 0.03^2 / 0.0008, 0.3^2 / 0.0008), so 75.5 % / 24.5 % / 0.
+        let p1 = (-1.125f32).exp() / (1.0 + (-1.125f32).exp());
+        let expected = -((1.0 - p1) * 0.98f32.ln() + p1 * 0.01f32.ln());
+        assert!((near - expected).abs() < 1e-4, "{near} vs {expected}");
         let wrong = pointer_loss(&Tensor::zeros((2, 4), DType::F32, &d).unwrap(), &candidates, &target, [0.3; 3], 0.02);
         assert!(wrong.unwrap_err().to_string().contains("pointer_loss"));
     }

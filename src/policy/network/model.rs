@@ -24,6 +24,11 @@
 //! depends only on the observation: inference runs it once and caches the scan state, then runs
 //! only the suffix at each Euler step. Heads on the last (action) token: velocity of the
 //! position (3) and of the rotation (6), and the gripper-open logit.
+//!
+//! With `model.position_pointer` (endpoint prediction), the position is a pointer into the
+//! scene: a softmax attention of the action token's output (plus the instruction) over the
+//! semantic and geometric tokens' keys, whose weighted mean position the head's output offsets.
+//! `flow.pointer_weight` trains that attention directly (`flow::pointer_loss`).
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 

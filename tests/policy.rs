@@ -218,6 +218,9 @@ fn the_instruction_pointer_reads_the_instruction_and_caches_like_the_rest_of_the
     // no AdaLN: the pointer token is the instruction's only way past the scan's first tokens
     config.model.instruction_adaln = false;
     config.model.instruction_pointer = true;
+    // and no position pointer: this test also covers the cached path of the paper's readout
+    config.model.position_pointer = false;
+    config.flow.pointer_weight = 0.0;
     config.model.instruction_pooling = InstructionPooling::Attention;
     let mut policy = Policy::random(&config, text()).unwrap();
     let observation = Observation::from_episode(demonstration(), 0).unwrap();
@@ -287,12 +290,24 @@ fn the_position_pointer_reads_the_instruction_caches_like_the_prefix_and_needs_t
     for (a, b) in whole.iter().zip(&cached) {
         assert!((a - b).abs() < 1e-4, "training forward {whole:?}, cached inference {cached:?}");
     }
-    // Without the AdaLN the instruction reaches the position through the pointer's query (and
-    // the scan); another instruction moves the predicted position.
-    let other = Observation { instruction: "open the middle drawer".into(), ..observation.clone() };
-    assert_ne!(other.instruction, observation.instruction);
-    let (moved, _) = predict(&other);
-    assert!(whole[..3].iter().zip(&moved[..3]).any(|(a, b)| (a - b).abs() > 1e-6), "{whole:?} vs {moved:?}");
+    // The pointer's own path: with sentence pooling and no AdaLN, the sentence embedding reaches
+    // nothing but the pointer's query. Changing it alone moves the position and leaves the
+    // rotation (read from the action token alone) exactly as it was.
+    let mut sentence = config.clone();
+    sentence.model.instruction_pooling = InstructionPooling::Sentence;
+    let mut policy = Policy::random(&sentence, text()).unwrap();
+    let prepared = policy.prepare(&observation).unwrap();
+    let observations = [(&prepared, Augmentation::NONE)];
+    let prefix = prefix_inputs(&sentence, &observations).unwrap();
+    let suffix = suffix_inputs(&sentence, &observations, &[0], &action, &[0.3], &sentence.radius_schedule).unwrap();
+    let other = flowram::policy::network::model::PrefixInputs {
+        instruction: prefix.instruction.neg().unwrap(),
+        ..prefix.clone()
+    };
+    let told = policy.model.forward(&prefix, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
+    let swapped = policy.model.forward(&other, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
+    assert!(told[0][..3].iter().zip(&swapped[0][..3]).any(|(a, b)| (a - b).abs() > 1e-6), "{told:?} vs {swapped:?}");
+    assert_eq!(told[0][3..], swapped[0][3..], "the rotation read the sentence embedding");
 }
 
 #[test]
@@ -350,10 +365,22 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     json["model"].as_object_mut().unwrap().remove("instruction_adaln");
     json["flow"].as_object_mut().unwrap().remove("prediction");
     json["flow"].as_object_mut().unwrap().remove("time_sampling");
+    for (section, key) in [
+        ("model", "instruction_pointer"),
+        ("model", "position_pointer"),
+        ("model", "point_colour"),
+        ("flow", "pointer_weight"),
+        ("flow", "pointer_sigma"),
+    ] {
+        json[section].as_object_mut().unwrap().remove(key);
+    }
     let config: PolicyConfig = serde_json::from_value(json).unwrap();
     assert!(!config.model.instruction_adaln);
     assert_eq!(config.flow.prediction, flowram::policy::flow::Prediction::Velocity);
     assert_eq!(config.flow.time_sampling, flowram::policy::flow::FlowTimeSampling::Uniform);
+    assert!(!config.model.instruction_pointer && !config.model.position_pointer && !config.model.point_colour);
+    assert_eq!((config.flow.pointer_weight, config.flow.pointer_sigma), (0.0, 0.02));
+    config.validate().unwrap();
 }
 
 #[test]

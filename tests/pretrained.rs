@@ -1,7 +1,7 @@
 //! The checkpoints shipped in `models/policy/pretrained/` (see their model cards): `five-tasks`,
-//! the default for its five tasks, and `ten-tasks`, the default for the other five. Each loads, predicts the first keyframe of a held-out
-//! episode of every task it was trained on where it did when shipped, and follows the
-//! instruction. Fails if a checkpoint, its config or the inference path breaks.
+//! the default for its five tasks, and `ten-tasks`, the default for the other five. Each loads,
+//! predicts the first keyframe of a held-out episode of every task it was trained on where it did
+//! when shipped, and follows the instruction. Fails if a checkpoint, its config or the inference path breaks.
 use flowram::data::Episode;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
@@ -130,8 +130,8 @@ fn the_shipped_checkpoint_predicts_what_it_predicted_when_shipped() {
 }
 
 /// The goal of the policy issue: every task's first keyframe within 2 cm. The shipped checkpoint
-/// meets it on no task at this seed (23-56 mm, see SHIPPED_PREDICTIONS and the model card), so this test is
-/// run on demand (`cargo test --release --test pretrained -- --ignored`) until one does.
+/// meets it on no task at this seed (23-56 mm, see SHIPPED_PREDICTIONS and the model card), so
+/// this test is run on demand (`cargo test --release --test pretrained -- --ignored`) until one does.
 #[test]
 #[ignore = "missed by the shipped checkpoint on every task at this seed (model card); run with --ignored"]
 fn the_shipped_checkpoint_predicts_every_tasks_first_keyframe_within_2_cm() {
@@ -177,7 +177,7 @@ fn goes_to_the_drawer_it_is_told(checkpoint: &str) {
     );
 }
 
-/// The default checkpoint (`ten-tasks`): each task's first keyframe at [`SEED`] as predicted when
+/// The ten-task checkpoint (the default for the tasks five-tasks was not trained on): each task's first keyframe at [`SEED`] as predicted when
 /// it was shipped (world frame, m; 8 Euler steps, noise seed 0) and the expert's distance (mm).
 const TEN_TASK_PREDICTIONS: [[f32; 3]; 10] = [
     [0.4588564, 0.0090225935, 0.9868793],
@@ -194,7 +194,7 @@ const TEN_TASK_PREDICTIONS: [[f32; 3]; 10] = [
 const TEN_TASK_EXPERT_MM: [f64; 10] = [10.9, 259.7, 80.2, 132.3, 310.5, 93.6, 22.3, 7.2, 28.2, 13.7];
 
 #[test]
-fn the_default_ten_task_checkpoint_predicts_what_it_predicted_when_shipped() {
+fn the_ten_task_checkpoint_predicts_what_it_predicted_when_shipped() {
     let default = flowram::deps::models_dir().join("policy/pretrained/ten-tasks");
     assert!(default.join("ema.safetensors").is_file(), "the default checkpoint is missing");
     let predictions = first_keyframes("ten-tasks", &TEN_TASKS);
@@ -212,6 +212,6 @@ fn the_default_ten_task_checkpoint_predicts_what_it_predicted_when_shipped() {
 }
 
 #[test]
-fn the_default_checkpoint_goes_to_the_drawer_it_is_told() {
+fn the_ten_task_checkpoint_goes_to_the_drawer_it_is_told() {
     goes_to_the_drawer_it_is_told("ten-tasks");
 }

@@ -97,7 +97,8 @@ pub struct ModelConfig {
     pub point_colour: bool,
 }
 
-/// How the instruction AdaLN (`model.instruction_adaln`) pools the instruction's tokens.
+/// How the instruction is pooled into one vector for the instruction AdaLN
+/// (`model.instruction_adaln`), the instruction-pointer token and the position pointer's query.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum InstructionPooling {

@@ -485,10 +485,20 @@ impl FlowRam {
     fn heads(&self, last: &Tensor, pointer: Option<(&PointerMemory, &Tensor, &Tensor)>) -> Result<Velocity> {
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
-        if let (Some(p), Some((memory, geometric, xyz))) = (&self.position_pointer, pointer) {
-            let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last)?;
-            position = position.add(&pointed)?;
-            attention = Some((log_weights, candidates));
+        match (&self.position_pointer, pointer) {
+            (Some(p), Some((memory, geometric, xyz))) => {
+                let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last)?;
+                position = position.add(&pointed)?;
+                attention = Some((log_weights, candidates));
+            }
+            (None, _) => {}
+            (Some(_), None) => {
+                return Err(PolicyError::Invalid(
+                    "the model has a position pointer (model.position_pointer) but the encoded observation \
+                     carries no pointer memory: encode it with this model"
+                        .into(),
+                ));
+            }
         }
         let velocity = Tensor::cat(&[position, self.rotation_head.forward(last)?], 1)?;
         let open_logit = self.open_head.forward(last)?.squeeze(1)?;

@@ -130,7 +130,9 @@ impl Trainer {
         let open_target = Tensor::from_vec(opens, b * k, &device())?;
         let (mut total, cfm, bce) =
             flow_matching_loss(&out.velocity, &target, &out.open_logit, &open_target, &weights)?;
-        if let (Some((log_weights, candidates)), true) = (&out.pointer, config.flow.pointer_weight > 0.0) {
+        if let Some((log_weights, candidates)) = &out.pointer
+            && config.flow.pointer_weight > 0.0
+        {
             let half_extent: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / 2.0);
             let position = a1.narrow(1, 0, 3)?;
             let pointer = pointer_loss(log_weights, candidates, &position, half_extent, config.flow.pointer_sigma)?;

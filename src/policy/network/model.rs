@@ -189,10 +189,8 @@ impl InstructionPointer {
 
     /// instruction [B, 384], tokens [B, N, C] -> [B, 1, C].
     fn forward(&self, instruction: &Tensor, tokens: &Tensor) -> Result<Tensor> {
-        let c = tokens.dim(2)?;
         let q = self.query.forward(instruction)?.unsqueeze(1)?;
-        let k = self.key.forward(tokens)?;
-        let scores = q.matmul(&k.transpose(1, 2)?.contiguous()?)?.affine(1.0 / (c as f64).sqrt(), 0.0)?;
+        let scores = attention_scores(&q, &self.key.forward(tokens)?)?;
         let weights = candle_nn::ops::softmax_last_dim(&scores)?;
         Ok(self.out.forward(&weights.matmul(tokens)?)?)
     }
@@ -235,11 +233,10 @@ impl PositionPointer {
         geometric_xyz: &Tensor,
         last: &Tensor,
     ) -> Result<(Tensor, Tensor, Tensor)> {
-        let c = last.dim(1)?;
         let keys = Tensor::cat(&[&memory.keys, &self.key.forward(geometric)?], 1)?;
         let xyz = Tensor::cat(&[&memory.xyz, geometric_xyz], 1)?;
         let q = self.query.forward(last)?.add(&memory.query)?.unsqueeze(1)?;
-        let scores = q.matmul(&keys.transpose(1, 2)?.contiguous()?)?.affine(1.0 / (c as f64).sqrt(), 0.0)?;
+        let scores = attention_scores(&q, &keys)?;
         let log_weights = candle_nn::ops::log_softmax(&scores, 2)?;
         let pointed = log_weights.exp()?.matmul(&xyz)?.squeeze(1)?;
         Ok((pointed, log_weights.squeeze(1)?, xyz))
@@ -553,6 +550,12 @@ impl FlowRam {
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
         self.heads(&last, pointer)
     }
+}
+
+/// Scaled dot-product scores of one query per sequence [B, 1, C] against keys [B, N, C]: [B, 1, N].
+fn attention_scores(query: &Tensor, keys: &Tensor) -> Result<Tensor> {
+    let c = keys.dim(2)?;
+    Ok(query.matmul(&keys.transpose(1, 2)?.contiguous()?)?.affine(1.0 / (c as f64).sqrt(), 0.0)?)
 }
 
 /// Softmax pooling of token features [B, L, D] by learned scores, over the non-padding tokens

@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use flowram::files::write_atomic;
 use flowram::rollout::collection::{self, CollectOptions};
-use flowram::rollout::episode::{Actor, Observer, camera_rig, run_episode};
+use flowram::rollout::episode::{Actor, Observer, Perturbation, camera_rig, run_episode};
 use flowram::rollout::learned::DEFAULT_CAMERAS;
 use flowram::rollout::realtime::{RealtimeActor, RealtimeFigures, RealtimeOptions, run_realtime_episode};
 use flowram::sim::{Visuals, image};
@@ -204,6 +204,14 @@ pub struct CollectArgs {
     /// Expert attempts per episode slot before it is given up.
     #[arg(long, default_value_t = 3)]
     attempts_per_episode: usize,
+    /// Recovery samples: before approach keyframes the arm first goes off target by this
+    /// standard deviation (m; x, y and upward z) and the observation there is saved with the
+    /// intended keyframe as its action (see README, "Datasets"). Off when not given.
+    #[arg(long)]
+    perturb_sigma: Option<f64>,
+    /// The chance that an approach keyframe gets such a detour (with --perturb-sigma).
+    #[arg(long, default_value_t = 0.5, requires = "perturb_sigma")]
+    perturb_probability: f64,
     #[command(flatten)]
     shard: super::ShardArgs,
     #[arg(long)]
@@ -220,6 +228,7 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
         cameras: args.cameras.clone(),
         size: args.size,
         shard: args.shard.resolve()?,
+        perturbation: args.perturb_sigma.map(|sigma_m| Perturbation { probability: args.perturb_probability, sigma_m }),
     };
     let owned = options.shard.items(args.episodes).count();
     let mut bar = TaskBar::for_collection(task.name(), owned);

@@ -8,7 +8,7 @@ use std::time::Instant;
 use serde::{Deserialize, Serialize};
 
 use super::RolloutError;
-use super::episode::{Actor, Observer, camera_rig, run_episode};
+use super::episode::{Actor, Observer, Perturbation, camera_rig, run_episode};
 use super::shard::{Shard, check_shard_set, source_revision};
 use crate::data::{DataError, Dataset, Episode};
 use crate::files::write_atomic;
@@ -65,6 +65,8 @@ pub struct CollectOptions {
     pub size: usize,
     /// The slots this process collects (`Shard::WHOLE`: all).
     pub shard: Shard,
+    /// Recovery samples (detours before approach keyframes); `None`: the plain expert.
+    pub perturbation: Option<Perturbation>,
 }
 
 /// The seed of attempt `attempt` (0-based) of episode slot `slot`: `seed + slot + attempt *
@@ -99,6 +101,9 @@ pub struct CollectionManifest {
     pub episodes: usize,
     pub attempts_per_episode: usize,
     pub shard: Shard,
+    /// The recovery samples' perturbation (absent: the plain expert; older manifests).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub perturbation: Option<Perturbation>,
     /// In the order made (slot order).
     pub attempts: Vec<Attempt>,
 }
@@ -115,14 +120,19 @@ impl CollectionManifest {
             episodes: options.episodes,
             attempts_per_episode: options.attempts_per_episode,
             shard: options.shard,
+            perturbation: options.perturbation,
             attempts: Vec::new(),
         }
     }
 
     /// The request as a sentence, for error messages.
     fn request(&self) -> String {
+        let perturbation = match self.perturbation {
+            Some(p) => format!(" --perturb-sigma {} --perturb-probability {}", p.sigma_m, p.probability),
+            None => String::new(),
+        };
         format!(
-            "--task {} --episodes {} --seed {} --cameras {} --size {} --attempts-per-episode {} --shard-index {} --shard-count {}",
+            "--task {} --episodes {} --seed {} --cameras {} --size {} --attempts-per-episode {} --shard-index {} --shard-count {}{perturbation}",
             self.task,
             self.episodes,
             self.seed,
@@ -145,6 +155,7 @@ impl CollectionManifest {
                 other.attempts_per_episode,
                 other.shard,
             )
+            && self.perturbation == other.perturbation
     }
 
     /// Whether slot `k` has its episode.
@@ -207,6 +218,13 @@ pub fn collect(
     if options.attempts_per_episode == 0 {
         return Err(RolloutError::Zero { what: "the attempts per episode" });
     }
+    if let Some(p) = &options.perturbation {
+        p.validate().map_err(|problem| RolloutError::Perturbation { problem })?;
+    }
+    let actor = || match options.perturbation {
+        Some(p) => Actor::PerturbedExpert(p),
+        None => Actor::Expert,
+    };
     let mut world = tasks::load_world(task)?;
     let (mut rig, cameras) = camera_rig(&world, options.size, Visuals::Full, &options.cameras)?;
     let mut manifest = CollectionManifest::new(task.name(), options);
@@ -253,7 +271,7 @@ pub fn collect(
             let seed = attempt_seed(options.seed, options.episodes, k, r);
             let variation = seed as usize % task.variation_count();
             let mut observer = Observer { rig: &mut rig, cameras: cameras.clone() };
-            let result = run_episode(task, &mut world, variation, seed, Actor::Expert, Some(&mut observer))?;
+            let result = run_episode(task, &mut world, variation, seed, actor(), Some(&mut observer))?;
             attempts += 1;
             if result.success {
                 let episode = result.to_dataset_episode().ok_or(RolloutError::NoImages)?;
@@ -351,6 +369,9 @@ pub fn merge_collections(shards: &[PathBuf], out: &Path) -> Result<CollectionMer
                 format!("{:?}", (m.seed, m.episodes, m.attempts_per_episode)),
                 format!("{:?}", (first.seed, first.episodes, first.attempts_per_episode)),
             );
+        }
+        if m.perturbation != first.perturbation {
+            return differs("perturbation", format!("{:?}", m.perturbation), format!("{:?}", first.perturbation));
         }
         if !m.complete() {
             return refuse(format!(

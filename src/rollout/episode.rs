@@ -5,8 +5,9 @@
 //! Observations (RGB-D of the chosen cameras, proprioception) are taken at each keyframe for
 //! datasets and for the policy.
 use nalgebra::Isometry3;
-use rand::SeedableRng;
 use rand::rngs::StdRng;
+use rand::{Rng, SeedableRng};
+use serde::{Deserialize, Serialize};
 
 use super::RolloutError;
 use super::stack::build_runner;
@@ -45,12 +46,84 @@ pub trait KeyframePolicy {
 pub enum Actor<'a> {
     /// The task's scripted expert (all its keyframes, computed at the start).
     Expert,
+    /// The expert with recovery samples ([`Perturbation`]): some approach keyframes are first
+    /// executed off target, and the observation there is recorded with the intended keyframe.
+    PerturbedExpert(Perturbation),
     /// Nobody: the arm holds still for the given seconds (checks that success is not trivial).
     Idle { seconds: u32 },
     /// A learned policy, one keyframe per observation, until the task succeeds or
     /// `max_keyframes` were executed. Lock-step: the simulation waits for the policy
     /// (deterministic). Needs an observer with cameras.
     Policy { policy: &'a mut dyn KeyframePolicy, max_keyframes: usize },
+}
+
+/// Recovery samples in expert demonstrations (DART, Laskey et al. 2017, for keyframes): a
+/// policy trained only on the expert's own states has never seen itself a few centimetres off,
+/// and closed loop it soon is. Before an *approach* keyframe (one the next keyframe is at least
+/// [`Perturbation::APPROACH_DROP_M`] below: above a handle, a cap, a block, the far side of a
+/// block, a stack; always in free space), with chance `probability` the arm first goes to that
+/// keyframe moved by a random offset (x and y ~ N(0, sigma), z ~ |N(0, sigma)| upward only, each
+/// clipped to 2.5 sigma); the observation taken there joins the episode with the intended
+/// keyframe as its action, and the intended keyframe is then executed as usual. The expert's
+/// plan is unchanged (nothing is touched on the detour), so the episode keeps its success
+/// check. Offsets are drawn from the episode seed: a collection is reproducible.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Perturbation {
+    /// Chance that an approach keyframe gets a detour, in [0, 1].
+    pub probability: f64,
+    /// Standard deviation of the offset per axis, m (> 0, at most 0.1).
+    pub sigma_m: f64,
+}
+
+impl Perturbation {
+    /// How far below an approach keyframe its successor is, at least (m).
+    pub const APPROACH_DROP_M: f64 = 0.04;
+    /// The offsets' clip, in standard deviations.
+    const CLIP: f64 = 2.5;
+    /// Mixed into the episode seed for the offsets' RNG (independent of the reset's draws).
+    const SEED_SALT: u64 = 0x5eed_da27;
+
+    /// Checks the ranges; the error says what is expected.
+    pub fn validate(&self) -> Result<(), String> {
+        if !(0.0..=1.0).contains(&self.probability) {
+            return Err(format!("the perturbation probability is {}; expected a value in [0, 1]", self.probability));
+        }
+        if !(self.sigma_m > 0.0 && self.sigma_m <= 0.1) {
+            return Err(format!(
+                "the perturbation sigma is {} m; expected more than 0 and at most 0.1 m (a few centimetres)",
+                self.sigma_m
+            ));
+        }
+        Ok(())
+    }
+
+    /// Whether keyframe `k` of `plan` is an approach keyframe.
+    pub fn is_approach(plan: &[Keyframe], k: usize) -> bool {
+        matches!((plan.get(k), plan.get(k + 1)), (Some(a), Some(b)) if a.position[2] - b.position[2] >= Self::APPROACH_DROP_M)
+    }
+
+    /// The detour before keyframe `k` of `plan`, if it gets one (draws from `rng` for every
+    /// approach keyframe, so each episode's draws depend only on its seed and plan).
+    fn detour(&self, plan: &[Keyframe], k: usize, rng: &mut StdRng) -> Option<Keyframe> {
+        if !Self::is_approach(plan, k) {
+            return None;
+        }
+        let go = rng.random::<f64>() < self.probability;
+        let clip = |v: f64| v.clamp(-Self::CLIP, Self::CLIP) * self.sigma_m;
+        let offset = [
+            clip(crate::policy::flow::standard_normal(rng)),
+            clip(crate::policy::flow::standard_normal(rng)),
+            clip(crate::policy::flow::standard_normal(rng)).abs(),
+        ];
+        go.then(|| {
+            let mut detour = plan[k];
+            for (p, o) in detour.position.iter_mut().zip(offset) {
+                *p += o;
+            }
+            detour
+        })
+    }
 }
 
 /// The state at one keyframe: images (if cameras were given) and the TCP pose + gripper.
@@ -121,11 +194,14 @@ pub fn run_episode(
             return Err(RolloutError::NoCameras);
         }
     }
+    if let Actor::PerturbedExpert(p) = &actor {
+        p.validate().map_err(|problem| RolloutError::Perturbation { problem })?;
+    }
     let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
     let base = world.base_pose();
     let instruction = task.instruction(variation);
     let (planned, budget) = match actor {
-        Actor::Expert => {
+        Actor::Expert | Actor::PerturbedExpert(_) => {
             let planned = task.expert(world, &state)?;
             let budget = planned.len();
             (planned, budget)
@@ -150,15 +226,28 @@ pub fn run_episode(
         reached_poses: Vec::with_capacity(budget),
         problems: Vec::new(),
     };
+    let mut perturbation = match actor {
+        Actor::PerturbedExpert(p) => Some((p, StdRng::seed_from_u64(seed ^ Perturbation::SEED_SALT))),
+        _ => None,
+    };
     let mut gripper_open = true;
     for k in 0..budget {
-        let observation = observe(world, observer.as_deref_mut(), gripper_open)?;
+        let mut observation = observe(world, observer.as_deref_mut(), gripper_open)?;
         let keyframe = match (&mut actor, planned.get(k)) {
             (Actor::Policy { policy, .. }, _) => policy.next_keyframe(&instruction, k, &observation)?,
             (_, Some(keyframe)) => *keyframe,
             (_, None) => break,
         };
+        if let Some(detour) = perturbation.as_mut().and_then(|(p, rng)| p.detour(&planned, k, rng)) {
+            // The intended keyframe is this observation's action, the detour is what runs.
+            result.observations.push(observation);
+            result.actions.push(proprio_of(&keyframe));
+            execute(task, world, &mut runner, &base, k, &detour, &mut state, &mut result)?;
+            result.keyframes += 1;
+            observation = observe(world, observer.as_deref_mut(), detour.gripper_open)?;
+        }
         result.observations.push(observation);
+        result.actions.push(proprio_of(&keyframe));
         execute(task, world, &mut runner, &base, k, &keyframe, &mut state, &mut result)?;
         result.keyframes += 1;
         gripper_open = keyframe.gripper_open;
@@ -176,7 +265,7 @@ pub fn run_episode(
     Ok(result)
 }
 
-/// Executes keyframe `k` (world frame) and records how it went.
+/// Executes keyframe `k` (world frame) and records how it went (the caller records the action).
 #[allow(clippy::too_many_arguments)]
 fn execute(
     task: &dyn Task,
@@ -188,7 +277,6 @@ fn execute(
     state: &mut TaskState,
     result: &mut EpisodeResult,
 ) -> Result<(), RolloutError> {
-    result.actions.push(proprio_of(keyframe));
     let report = runner.run(world, &[in_base(base, k, keyframe)?])?;
     for r in &report.keyframes {
         if r.reached {

@@ -53,6 +53,9 @@ pub enum RolloutError {
     /// A keyframe that cannot be a target pose (non-finite position, zero quaternion).
     #[error("keyframe {index} is not a valid pose")]
     InvalidKeyframe { index: usize, source: IkError },
+    /// A perturbation of expert demonstrations out of its ranges.
+    #[error("{problem}")]
+    Perturbation { problem: String },
     /// A learned policy was asked to act without camera frames to look at.
     #[error("the policy needs camera frames, but the episode observes no cameras")]
     NoCameras,

@@ -1,8 +1,10 @@
 #!/usr/bin/env bash
 # Makes a multi-task FlowRAM checkpoint from nothing:
 #   scripts/train-tasks.sh NAME CONFIG TASK [TASK...]
-#  1. expert demonstrations: DEMOS (default 100) successful episodes of each task from seed 0, and
-#     10 held-out episodes of each from seed 1000 (for `bench heldout`), into runs/data/;
+#  1. expert demonstrations: DEMOS (default 100; DEMOS_<task>, e.g. DEMOS_push_buttons=300, for one
+#     task) successful episodes of each task from seed 0, with recovery samples when PERTURB_SIGMA
+#     is set (metres, `collect --perturb-sigma`, every approach keyframe: probability 1), and 10
+#     held-out episodes of each from seed 1000 (plain expert, for `bench heldout`), into runs/data/;
 #  2. training with CONFIG into runs/NAME (FLOWRAM_TRAIN_STEPS overrides the config's steps);
 #  3. held-out keyframe errors and closed-loop success (EPISODES per task, default 50, seeds
 #     1000+) into runs/NAME/{heldout,success}.json.
@@ -25,10 +27,19 @@ demos="${DEMOS:-100}"
 run=runs/$name
 data=()
 held=()
+perturb=()
+suffix=
+if [ -n "${PERTURB_SIGMA:-}" ]; then
+  perturb=(--perturb-sigma "$PERTURB_SIGMA" --perturb-probability 1)
+  suffix=-perturbed-$PERTURB_SIGMA
+fi
 for task in "${tasks[@]}"; do
-  [ -f "runs/data/$task-$demos/index.json" ] || "$bin" collect --task "$task" --episodes "$demos" --seed 0 --out "runs/data/$task-$demos"
+  count_var=DEMOS_$task
+  n=${!count_var:-$demos}
+  dir=runs/data/$task-$n$suffix
+  [ -f "$dir/index.json" ] || "$bin" collect --task "$task" --episodes "$n" --seed 0 --out "$dir" "${perturb[@]}"
   [ -f "runs/data/held_$task/index.json" ] || "$bin" collect --task "$task" --episodes 10 --seed 1000 --out "runs/data/held_$task"
-  data+=("runs/data/$task-$demos")
+  data+=("$dir")
   held+=("runs/data/held_$task")
 done
 data_list=$(IFS=,; echo "${data[*]}")

@@ -229,6 +229,33 @@ fn run_and_collect_write_what_they_report() {
     assert!(loaded.failures.is_empty());
     assert!(loaded.episodes.iter().all(|e| e.success && e.cameras == ["front", "wrist"] && e.height == 64));
 
+    // recovery samples: recorded in the manifest, and the same folder refuses another request
+    let perturbed = dir.path().join("perturbed");
+    let collect = |extra: &[&str]| {
+        common::flowram()
+            .args(["collect", "--task", "slide_block", "--episodes", "1", "--cameras", "front", "--size", "32"])
+            .args(extra)
+            .arg("--out")
+            .arg(&perturbed)
+            .output()
+            .unwrap()
+    };
+    let out = collect(&["--perturb-sigma", "0.03", "--perturb-probability", "1"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let manifest: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(perturbed.join("manifest.json")).unwrap()).unwrap();
+    assert_eq!(manifest["perturbation"], serde_json::json!({"probability": 1.0, "sigma_m": 0.03, "target": "next"}));
+    let loaded = flowram::data::load_dataset(&perturbed).unwrap();
+    assert_eq!(loaded.episodes[0].proprio.len() / 8, 5, "slide_block's 4 keyframes and one detour");
+    let out = collect(&["--perturb-sigma", "0.03", "--perturb-probability", "1", "--perturb-target", "approach"]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("--perturb-target next") && !err.contains("panicked"), "{err}");
+    let out = collect(&["--perturb-sigma", "0.5"]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("at most 0.1 m") && !err.contains("panicked"), "{err}");
+
     let out = common::flowram().args(["run", "--task", "juggle"]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&out.stderr).contains("push_buttons"));

@@ -9,7 +9,9 @@ use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
 use flowram::rollout::RolloutError;
-use flowram::rollout::episode::{Actor, KeyframeObservation, KeyframePolicy, Observer, Perturbation, run_episode};
+use flowram::rollout::episode::{
+    Actor, KeyframeObservation, KeyframePolicy, Observer, Perturbation, RecoveryTarget, run_episode,
+};
 use flowram::rollout::learned::{FlowRamActor, policy_observation};
 use flowram::sim::{CameraRig, Visuals};
 use flowram::tasks::{self, TaskError};
@@ -79,41 +81,47 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
     let approaches: Vec<usize> =
         (0..plan.len()).filter(|&k| k + 1 < plan.len() && plan[k][2] - plan[k + 1][2] >= 0.04).collect();
     assert_eq!(approaches, vec![0, 2], "above each cap, then the press");
-    let always = Perturbation { probability: 1.0, sigma_m: 0.03 };
-    let run = |world: &mut _| run_episode(task.as_ref(), world, 20, 5, Actor::PerturbedExpert(always), None).unwrap();
-    let noisy = run(&mut world);
-    assert!(noisy.success, "problems: {:?}", noisy.problems);
-    assert_eq!(noisy.keyframes, clean.keyframes + approaches.len());
-    assert_eq!(noisy.observations.len(), noisy.actions.len());
-    // each approach keyframe is the action twice: from the clean state, then from the detour
-    let mut detours = 0;
-    for (k, a) in noisy.actions.iter().enumerate() {
-        if k > 0 && noisy.actions[k - 1] == *a {
-            detours += 1;
-            let seen = noisy.observations[k].proprio;
-            let off = (0..3).map(|i| (seen[i] - a[i]).powi(2)).sum::<f32>().sqrt();
-            assert!(off > 0.002 && off < 0.2, "the detour is {off} m from the approach keyframe");
-            assert!(seen[2] >= a[2] - 0.005, "detours go up, not down into the scene: {} vs {}", seen[2], a[2]);
-        }
+    let always = |target| Perturbation { probability: 1.0, sigma_m: 0.03, target };
+    let run = |world: &mut _, target| {
+        run_episode(task.as_ref(), world, 20, 5, Actor::PerturbedExpert(always(target)), None).unwrap()
+    };
+    let next = run(&mut world, RecoveryTarget::Next);
+    assert!(next.success, "problems: {:?}", next.problems);
+    assert_eq!(next.keyframes, clean.keyframes + approaches.len());
+    assert_eq!(next.observations.len(), next.actions.len());
+    // step j = approach k + (detours before it): the clean observation goes to the approach, the
+    // detour's observation (off the approach, above it) goes on to the press, as the clean
+    // observation at the approach does
+    for (i, &k) in approaches.iter().enumerate() {
+        let j = k + i;
+        assert_eq!(next.actions[j], plan[k]);
+        assert_eq!(next.actions[j + 1], plan[k + 1], "the detour's action is the keyframe after the approach");
+        assert_eq!(next.actions[j + 2], plan[k + 1]);
+        let seen = next.observations[j + 1].proprio;
+        let off = (0..3).map(|d| (seen[d] - plan[k][d]).powi(2)).sum::<f32>().sqrt();
+        assert!(off > 0.002 && off < 0.2, "the detour is {off} m from the approach keyframe");
+        assert!(seen[2] >= plan[k][2] - 0.005, "detours go up, not down into the scene: {} vs {}", seen[2], plan[k][2]);
     }
-    assert_eq!(detours, approaches.len());
-    // without the detours, the clean plan is what was executed and recorded
-    let mut undetoured = noisy.actions.clone();
+    // without the detours' steps, the clean episode
+    let mut undetoured = next.actions.clone();
     undetoured.dedup();
     assert_eq!(undetoured, clean.actions);
-    // the offsets come from the episode seed
-    let again = run(&mut world);
-    assert_eq!(
-        again.observations.iter().map(|o| o.proprio).collect::<Vec<_>>(),
-        noisy.observations.iter().map(|o| o.proprio).collect::<Vec<_>>()
-    );
+    // the approach target: the same detours (drawn from the episode seed), the approach as action
+    let approach = run(&mut world, RecoveryTarget::Approach);
+    assert!(approach.success);
+    let seen =
+        |r: &flowram::rollout::episode::EpisodeResult| r.observations.iter().map(|o| o.proprio).collect::<Vec<_>>();
+    assert_eq!(seen(&approach), seen(&next));
+    for (i, &k) in approaches.iter().enumerate() {
+        assert_eq!(approach.actions[k + i + 1], plan[k]);
+    }
     // never: the plain expert
-    let never = Perturbation { probability: 0.0, sigma_m: 0.03 };
+    let never = Perturbation { probability: 0.0, sigma_m: 0.03, target: RecoveryTarget::Next };
     let plain = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(never), None).unwrap();
     assert_eq!(plain.actions, clean.actions);
     // out of range: a clear error, before anything runs
-    for bad in [Perturbation { probability: 1.5, sigma_m: 0.03 }, Perturbation { probability: 0.5, sigma_m: f64::NAN }]
-    {
+    for (probability, sigma_m) in [(1.5, 0.03), (0.5, f64::NAN)] {
+        let bad = Perturbation { probability, sigma_m, target: RecoveryTarget::Next };
         let err =
             run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(bad), None).unwrap_err().to_string();
         assert!(err.contains("expected"), "{err}");

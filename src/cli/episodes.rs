@@ -6,7 +6,7 @@ use anyhow::Context;
 use clap::{Args, ValueEnum};
 use flowram::files::write_atomic;
 use flowram::rollout::collection::{self, CollectOptions};
-use flowram::rollout::episode::{Actor, Observer, Perturbation, camera_rig, run_episode};
+use flowram::rollout::episode::{Actor, Observer, Perturbation, RecoveryTarget, camera_rig, run_episode};
 use flowram::rollout::learned::DEFAULT_CAMERAS;
 use flowram::rollout::realtime::{RealtimeActor, RealtimeFigures, RealtimeOptions, run_realtime_episode};
 use flowram::sim::{Visuals, image};
@@ -212,6 +212,10 @@ pub struct CollectArgs {
     /// The chance that an approach keyframe gets such a detour (with --perturb-sigma).
     #[arg(long, default_value_t = 0.5, requires = "perturb_sigma")]
     perturb_probability: f64,
+    /// The action saved for the detour's observation: the keyframe after the approach (`next`),
+    /// or the approach keyframe itself (`approach`, measured harmful: experiments arm R).
+    #[arg(long, default_value = "next", value_parser = ["next", "approach"], requires = "perturb_sigma")]
+    perturb_target: String,
     #[command(flatten)]
     shard: super::ShardArgs,
     #[arg(long)]
@@ -228,7 +232,11 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
         cameras: args.cameras.clone(),
         size: args.size,
         shard: args.shard.resolve()?,
-        perturbation: args.perturb_sigma.map(|sigma_m| Perturbation { probability: args.perturb_probability, sigma_m }),
+        perturbation: args.perturb_sigma.map(|sigma_m| Perturbation {
+            probability: args.perturb_probability,
+            sigma_m,
+            target: if args.perturb_target == "approach" { RecoveryTarget::Approach } else { RecoveryTarget::Next },
+        }),
     };
     let owned = options.shard.items(args.episodes).count();
     let mut bar = TaskBar::for_collection(task.name(), owned);

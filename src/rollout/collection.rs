@@ -128,7 +128,15 @@ impl CollectionManifest {
     /// The request as a sentence, for error messages.
     fn request(&self) -> String {
         let perturbation = match self.perturbation {
-            Some(p) => format!(" --perturb-sigma {} --perturb-probability {}", p.sigma_m, p.probability),
+            Some(p) => format!(
+                " --perturb-sigma {} --perturb-probability {} --perturb-target {}",
+                p.sigma_m,
+                p.probability,
+                match p.target {
+                    super::episode::RecoveryTarget::Next => "next",
+                    super::episode::RecoveryTarget::Approach => "approach",
+                }
+            ),
             None => String::new(),
         };
         format!(

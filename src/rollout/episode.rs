@@ -63,8 +63,8 @@ pub enum Actor<'a> {
 /// [`Perturbation::APPROACH_DROP_M`] below: above a handle, a cap, a block, the far side of a
 /// block, a stack; always in free space), with chance `probability` the arm first goes to that
 /// keyframe moved by a random offset (x and y ~ N(0, sigma), z ~ |N(0, sigma)| upward only, each
-/// clipped to 2.5 sigma); the observation taken there joins the episode with the intended
-/// keyframe as its action, and the intended keyframe is then executed as usual. The expert's
+/// clipped to 2.5 sigma); the observation taken there joins the episode with the action
+/// [`RecoveryTarget`] says, and the approach keyframe is then executed as usual. The expert's
 /// plan is unchanged (nothing is touched on the detour), so the episode keeps its success
 /// check. Offsets are drawn from the episode seed: a collection is reproducible.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -74,6 +74,24 @@ pub struct Perturbation {
     pub probability: f64,
     /// Standard deviation of the offset per axis, m (> 0, at most 0.1).
     pub sigma_m: f64,
+    /// The action of the observation taken on the detour (absent in manifests written before
+    /// it existed: `approach`, what they did).
+    #[serde(default)]
+    pub target: RecoveryTarget,
+}
+
+/// The action recorded for an observation taken on a detour.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RecoveryTarget {
+    /// The keyframe after the approach (the expert, from near the approach pose, goes on to
+    /// where it was going): consistent with the clean sample at the approach pose.
+    #[default]
+    Next,
+    /// The approach keyframe itself. Measured harmful (`docs/experiments.md`, arm R): near the
+    /// approach pose it teaches "go to the approach pose", a fixed point the policy never
+    /// leaves closed loop.
+    Approach,
 }
 
 impl Perturbation {
@@ -238,16 +256,21 @@ pub fn run_episode(
             (_, Some(keyframe)) => *keyframe,
             (_, None) => break,
         };
-        if let Some(detour) = perturbation.as_mut().and_then(|(p, rng)| p.detour(&planned, k, rng)) {
+        let mut action = keyframe;
+        if let Some((p, detour)) = perturbation.as_mut().and_then(|(p, rng)| Some((*p, p.detour(&planned, k, rng)?))) {
             // The intended keyframe is this observation's action, the detour is what runs.
             result.observations.push(observation);
             result.actions.push(proprio_of(&keyframe));
             execute(task, world, &mut runner, &base, k, &detour, &mut state, &mut result)?;
             result.keyframes += 1;
             observation = observe(world, observer.as_deref_mut(), detour.gripper_open)?;
+            if p.target == RecoveryTarget::Next {
+                // An approach keyframe has a successor (`is_approach`).
+                action = planned.get(k + 1).copied().unwrap_or(keyframe);
+            }
         }
         result.observations.push(observation);
-        result.actions.push(proprio_of(&keyframe));
+        result.actions.push(proprio_of(&action));
         execute(task, world, &mut runner, &base, k, &keyframe, &mut state, &mut result)?;
         result.keyframes += 1;
         gripper_open = keyframe.gripper_open;

@@ -205,8 +205,8 @@ pub struct CollectArgs {
     #[arg(long, default_value_t = 3)]
     attempts_per_episode: usize,
     /// Recovery samples: before approach keyframes the arm first goes off target by this
-    /// standard deviation (m; x, y and upward z) and the observation there is saved with the
-    /// intended keyframe as its action (see README, "Datasets"). Off when not given.
+    /// standard deviation (m; x, y and upward z) and the observation there is saved as an extra
+    /// step, its action set by --perturb-target (README, "Recovery samples"). Off when not given.
     #[arg(long)]
     perturb_sigma: Option<f64>,
     /// The chance that an approach keyframe gets such a detour (with --perturb-sigma).

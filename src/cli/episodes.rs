@@ -235,7 +235,8 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
         perturbation: args.perturb_sigma.map(|sigma_m| Perturbation {
             probability: args.perturb_probability,
             sigma_m,
-            target: if args.perturb_target == "approach" { RecoveryTarget::Approach } else { RecoveryTarget::Next },
+            // clap accepts only the names
+            target: RecoveryTarget::named(&args.perturb_target).unwrap_or_default(),
         }),
     };
     let owned = options.shard.items(args.episodes).count();

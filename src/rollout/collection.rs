@@ -132,10 +132,7 @@ impl CollectionManifest {
                 " --perturb-sigma {} --perturb-probability {} --perturb-target {}",
                 p.sigma_m,
                 p.probability,
-                match p.target {
-                    super::episode::RecoveryTarget::Next => "next",
-                    super::episode::RecoveryTarget::Approach => "approach",
-                }
+                p.target.name()
             ),
             None => String::new(),
         };

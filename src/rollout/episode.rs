@@ -94,6 +94,23 @@ pub enum RecoveryTarget {
     Approach,
 }
 
+impl RecoveryTarget {
+    /// Every target, with its name (as in manifests and `collect --perturb-target`).
+    pub const NAMES: [(&'static str, RecoveryTarget); 2] = [("next", Self::Next), ("approach", Self::Approach)];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Next => "next",
+            Self::Approach => "approach",
+        }
+    }
+
+    /// The target called `name`, if any.
+    pub fn named(name: &str) -> Option<Self> {
+        Self::NAMES.iter().find(|(n, _)| *n == name).map(|(_, t)| *t)
+    }
+}
+
 impl Perturbation {
     /// How far below an approach keyframe its successor is, at least (m).
     pub const APPROACH_DROP_M: f64 = 0.04;

@@ -229,7 +229,12 @@ fn the_instruction_pointer_reads_the_instruction_and_caches_like_the_rest_of_the
     let prefix = prefix_inputs(&config, &observations).unwrap();
     let action = [[0.1f32, -0.2, 0.3, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]];
     let suffix = suffix_inputs(&config, &observations, &[0], &action, &[0.4], &config.radius_schedule).unwrap();
-    let whole = policy.model.forward(&prefix, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
+    let out = policy.model.forward(&prefix, &suffix).unwrap();
+    let goal = out.goal.expect("the training forward returns the instruction pointer's attention");
+    assert_eq!(goal.dims(), &[1, config.observation.semantic_tokens]);
+    let total: f32 = goal.exp().unwrap().sum_all().unwrap().to_scalar().unwrap();
+    assert!((total - 1.0).abs() < 1e-4, "the attention sums to {total}");
+    let whole = out.velocity.to_vec2::<f32>().unwrap();
     let encoded = policy.model.encode(&prefix).unwrap();
     let cached = policy.model.step(&encoded, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap();
     for (a, b) in whole[0].iter().zip(&cached[0]) {
@@ -248,6 +253,55 @@ fn the_instruction_pointer_reads_the_instruction_and_caches_like_the_rest_of_the
     let other = Observation { instruction: "open the middle drawer".into(), ..observation.clone() };
     assert_ne!(other.instruction, observation.instruction);
     assert_ne!(pointer_token(&observation), pointer_token(&other), "the pointer token does not read the instruction");
+}
+
+#[test]
+fn the_goal_loss_points_the_instruction_pointer_at_the_episodes_last_keyframe() {
+    use flowram::policy::inputs::{Augmentation, prefix_inputs};
+    let mut config = tiny_config();
+    config.model.instruction_pointer = true;
+    config.train.batch = 8;
+    let mut wrong = config.clone();
+    wrong.model.instruction_pointer = false;
+    wrong.flow.goal_weight = 1.0;
+    let err = wrong.validate().unwrap_err().to_string();
+    assert!(err.contains("flow.goal_weight") && err.contains("instruction_pointer"), "{err}");
+    let episode = demonstration();
+    let last =
+        Observation::episode_action(episode, episode.keyframes() - 1).to_action(&config.observation.workspace).unwrap();
+    // Mean distance (normalised units) from the pointed position to the last keyframe over the
+    // episode's observations, after the same 100 steps with and without the goal loss.
+    let pointing = |goal_weight: f64| -> f32 {
+        let mut config = config.clone();
+        config.flow.goal_weight = goal_weight;
+        let mut data = TrainingData::from_episodes(vec![episode.clone()]).unwrap();
+        let mut text = text();
+        let mut trainer = Trainer::new(&config).unwrap();
+        for _ in 0..100 {
+            trainer.train_step(&mut data, &mut text).unwrap();
+        }
+        let mut policy = Policy::random(&config, text).unwrap();
+        let mut total = 0.0;
+        for k in 0..episode.keyframes() {
+            let prepared = policy.prepare(&Observation::from_episode(episode, k).unwrap()).unwrap();
+            let prefix = prefix_inputs(&config, &[(&prepared, Augmentation::NONE)]).unwrap();
+            let encoded = trainer.model.encode(&prefix).unwrap();
+            let goal: Vec<f32> = encoded
+                .goal
+                .expect("the encoding keeps the pointed position")
+                .flatten_all()
+                .unwrap()
+                .to_vec1()
+                .unwrap();
+            total += (0..3).map(|a| (goal[a] - last[a]).powi(2)).sum::<f32>().sqrt();
+        }
+        total / episode.keyframes() as f32
+    };
+    let (supervised, unsupervised) = (pointing(1.0), pointing(0.0));
+    assert!(
+        supervised < 0.5 * unsupervised,
+        "pointed {supervised:.3} from the goal with its loss, {unsupervised:.3} without"
+    );
 }
 
 #[test]

@@ -74,8 +74,12 @@ pub struct ModelConfig {
     /// Append an instruction-pointer token to the prefix: a softmax attention whose query is the
     /// instruction (pooled as `instruction_pooling` says) and whose keys and values are the
     /// semantic tokens, so "the red button" can pick out the tokens that look like it and hand
-    /// their features and positions to the scan in one token. Off (the paper): the scan alone
-    /// must carry the instruction to the right tokens.
+    /// their features and positions to the scan in one token. The token also carries the
+    /// encoding of the pointed position (the attention-weighted mean of the tokens' positions),
+    /// and the action token the encoding of its offset from that position, so the action can be
+    /// placed relative to the object the instruction names (behind the block, seen from the
+    /// named zone). `flow.goal_weight` supervises where it points. Off (the paper): the scan
+    /// alone must carry the instruction to the right tokens.
     #[serde(default)]
     pub instruction_pointer: bool,
     /// Read the predicted position out as a pointer into the scene: a softmax attention whose
@@ -131,9 +135,19 @@ pub struct FlowConfig {
     /// a_t is mostly noise. 0 (the paper has no pointer): none.
     #[serde(default)]
     pub pointer_weight: f64,
-    /// Metres; the width of that soft target.
+    /// Metres; the width of that soft target (and of `goal_weight`'s).
     #[serde(default = "pointer_sigma")]
     pub pointer_sigma: f64,
+    /// Weight of the instruction pointer's own loss (`model.instruction_pointer`): the
+    /// cross-entropy of its attention over the semantic tokens against a soft target on the
+    /// tokens near the episode's last keyframe (the goal the instruction names: the drawer
+    /// pulled open, the zone the block ends in, the jar the lid goes on), added to the total.
+    /// The position pointer's loss supervises only where the next keyframe is; on slide_block
+    /// that is beside the block for the first keyframes, so the named zone, which decides which
+    /// side of the block to go down on, is never pointed at until the push. 0 (the paper has no
+    /// pointer): none.
+    #[serde(default)]
+    pub goal_weight: f64,
 }
 
 fn pointer_sigma() -> f64 {
@@ -256,6 +270,13 @@ impl PolicyConfig {
                 self.flow.pointer_weight.to_string(),
             );
         }
+        if self.flow.goal_weight > 0.0 && !self.model.instruction_pointer {
+            return bad(
+                "flow.goal_weight",
+                "0 unless model.instruction_pointer = true (it is the instruction pointer's loss)",
+                self.flow.goal_weight.to_string(),
+            );
+        }
         self.radius_schedule.validate()?;
         self.flow.time_sampling.validate()?;
         let t = &self.train;
@@ -264,6 +285,7 @@ impl PolicyConfig {
             ("flow.open_weight", self.flow.open_weight, self.flow.open_weight >= 0.0),
             ("flow.pointer_weight", self.flow.pointer_weight, self.flow.pointer_weight >= 0.0),
             ("flow.pointer_sigma", self.flow.pointer_sigma, self.flow.pointer_sigma > 0.0),
+            ("flow.goal_weight", self.flow.goal_weight, self.flow.goal_weight >= 0.0),
             ("train.learning_rate", t.learning_rate, t.learning_rate > 0.0),
             ("train.weight_decay", t.weight_decay, t.weight_decay >= 0.0),
             ("train.min_learning_rate", t.min_learning_rate, (0.0..=t.learning_rate).contains(&t.min_learning_rate)),

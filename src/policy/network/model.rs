@@ -29,6 +29,11 @@
 //! scene: a softmax attention of the action token's output (plus the instruction) over the
 //! semantic and geometric tokens' keys, whose weighted mean position the head's output offsets.
 //! `flow.pointer_weight` trains that attention directly (`flow::pointer_loss`).
+//!
+//! With `model.instruction_pointer`, the prefix ends with one more token: an attention of the
+//! instruction over the semantic tokens (their features plus the encoding of their weighted mean
+//! position), and the action token gets the encoding of its offset from that position.
+//! `flow.goal_weight` trains that attention to point at the episode's last keyframe.
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
@@ -106,6 +111,8 @@ pub struct EncodedObservation {
     pub condition: Tensor,
     /// What the position pointer keeps of the prefix (`model.position_pointer`).
     pub pointer: Option<PointerMemory>,
+    /// The instruction pointer's pointed position [B, 3], normalised (`model.instruction_pointer`).
+    pub goal: Option<Tensor>,
 }
 
 /// The prefix's part of the position pointer (`model.position_pointer`): the semantic tokens'
@@ -153,6 +160,7 @@ impl EncodedObservation {
             state: self.state.repeat(n)?,
             condition: self.condition.repeat((n, 1))?,
             pointer: self.pointer.as_ref().map(|p| p.repeat(n)).transpose()?,
+            goal: self.goal.as_ref().map(|g| g.repeat((n, 1))).transpose()?,
         })
     }
 }
@@ -167,10 +175,25 @@ pub struct Velocity {
     /// With `model.position_pointer`: the pointer's log attention over its candidate tokens
     /// [B, N1 + N2] and their normalised positions [B, N1 + N2, 3] (for its loss).
     pub pointer: Option<(Tensor, Tensor)>,
+    /// With `model.instruction_pointer`, from the training forward only: its log attention over
+    /// the semantic tokens, one row per observation [B_obs, N1] (the candidates are the prefix
+    /// inputs' `semantic_xyz`; for `flow.goal_weight`).
+    pub goal: Option<Tensor>,
+}
+
+/// The prefix of a batch: tokens [B, Lt + N1 (+ 1 pointer), C], the condition [B, C], the
+/// position pointer's memory and the instruction pointer's log attention [B, N1] and pointed
+/// position [B, 3].
+struct Prefix {
+    tokens: Tensor,
+    condition: Tensor,
+    memory: Option<PointerMemory>,
+    goal: Option<(Tensor, Tensor)>,
 }
 
 /// The instruction-pointer token (`model.instruction_pointer`): one attention of the instruction
-/// over the semantic tokens.
+/// over the semantic tokens; the token is the attended features plus the encoding of the
+/// attended position.
 #[derive(Debug, Clone)]
 struct InstructionPointer {
     query: Linear,
@@ -187,12 +210,16 @@ impl InstructionPointer {
         })
     }
 
-    /// instruction [B, 384], tokens [B, N, C] -> [B, 1, C].
-    fn forward(&self, instruction: &Tensor, tokens: &Tensor) -> Result<Tensor> {
+    /// instruction [B, 384], tokens [B, N, C] at normalised positions xyz [B, N, 3] -> the token
+    /// [B, 1, C], the log attention [B, N] and the pointed position [B, 3].
+    fn forward(&self, instruction: &Tensor, tokens: &Tensor, xyz: &Tensor) -> Result<(Tensor, Tensor, Tensor)> {
         let q = self.query.forward(instruction)?.unsqueeze(1)?;
         let scores = attention_scores(&q, &self.key.forward(tokens)?)?;
-        let weights = candle_nn::ops::softmax_last_dim(&scores)?;
-        Ok(self.out.forward(&weights.matmul(tokens)?)?)
+        let log_weights = candle_nn::ops::log_softmax(&scores, 2)?;
+        let weights = log_weights.exp()?;
+        let pointed = weights.matmul(xyz)?;
+        let token = self.out.forward(&weights.matmul(tokens)?)?.add(&positional_encoding(&pointed, tokens.dim(2)?)?)?;
+        Ok((token, log_weights.squeeze(1)?, pointed.squeeze(1)?))
     }
 }
 
@@ -410,13 +437,8 @@ impl FlowRam {
         Ok(g.reshape((batch, n / batch, c))?)
     }
 
-    /// Prefix tokens [B, Lt + N1 (+ 1 pointer), C], the prefix condition [B, C] and the position
-    /// pointer's memory.
-    fn prefix_tokens(
-        &self,
-        features: &Tensor,
-        inputs: &PrefixInputs,
-    ) -> Result<(Tensor, Tensor, Option<PointerMemory>)> {
+    /// The prefix of a batch (see [`Prefix`]).
+    fn prefix_tokens(&self, features: &Tensor, inputs: &PrefixInputs) -> Result<Prefix> {
         let c = self.config.model.channels;
         let b = inputs.proprio.dim(0)?;
         let language = self.language_proj.forward(&inputs.language)?.broadcast_add(&self.type_embedding(LANGUAGE)?)?;
@@ -431,31 +453,33 @@ impl FlowRam {
             Some(p) => Some(p.memory(&semantic, &inputs.semantic_xyz, &instruction)?),
             None => None,
         };
-        let tokens = match &self.pointer {
+        let (tokens, goal) = match &self.pointer {
             Some(pointer) => {
-                let pointed = pointer.forward(&instruction, &semantic)?;
-                Tensor::cat(&[language, semantic, pointed], 1)?
+                let (token, log_weights, pointed) = pointer.forward(&instruction, &semantic, &inputs.semantic_xyz)?;
+                (Tensor::cat(&[language, semantic, token], 1)?, Some((log_weights, pointed)))
             }
-            None => Tensor::cat(&[language, semantic], 1)?,
+            None => (Tensor::cat(&[language, semantic], 1)?, None),
         };
         let mut condition = self.proprio_mlp.forward(&inputs.proprio)?;
         if let Some(mlp) = &self.instruction_mlp {
             condition = condition.add(&mlp.forward(&instruction)?)?;
         }
-        Ok((tokens, condition, memory))
+        Ok(Prefix { tokens, condition, memory, goal })
     }
 
     /// The prefix's tokens before the scan, [B, Lt + N1 (+ 1 pointer), C] (for tests and probes).
     pub fn prefix_token_features(&self, inputs: &PrefixInputs) -> Result<Tensor> {
         let features = self.image_features(&inputs.images)?;
-        Ok(self.prefix_tokens(&features, inputs)?.0)
+        Ok(self.prefix_tokens(&features, inputs)?.tokens)
     }
 
-    /// Suffix tokens [B, N2 + 1, C] and the suffix condition [B, C].
+    /// Suffix tokens [B, N2 + 1, C] and the suffix condition [B, C]; `goal` [B, 3] is the
+    /// instruction pointer's pointed position (`model.instruction_pointer`).
     fn suffix_tokens(
         &self,
         features: &Tensor,
         prefix_condition: &Tensor,
+        goal: Option<&Tensor>,
         inputs: &SuffixInputs,
     ) -> Result<(Tensor, Tensor)> {
         let c = self.config.model.channels;
@@ -466,12 +490,15 @@ impl FlowRam {
             .add(&positional_encoding(&inputs.geometric_xyz, c)?)?
             .add(&positional_encoding(&offset, c)?)?
             .broadcast_add(&self.type_embedding(GEOMETRIC)?)?;
-        let action = self
+        let mut action = self
             .action_in
             .forward(&inputs.action)?
             .add(&positional_encoding(&position.clamp(-1.5f32, 1.5f32)?, c)?)?
-            .broadcast_add(&self.type_embedding(ACTION)?)?
-            .unsqueeze(1)?;
+            .broadcast_add(&self.type_embedding(ACTION)?)?;
+        if let Some(goal) = goal {
+            action = action.add(&positional_encoding(&goal.sub(&position)?.clamp(-3f32, 3f32)?, c)?)?;
+        }
+        let action = action.unsqueeze(1)?;
         let tokens = Tensor::cat(&[geometric, action], 1)?;
         let condition = prefix_condition.add(&self.time_mlp.forward(&time_embedding(&inputs.t, c)?)?)?;
         Ok((tokens, condition))
@@ -499,7 +526,7 @@ impl FlowRam {
         }
         let velocity = Tensor::cat(&[position, self.rotation_head.forward(last)?], 1)?;
         let open_logit = self.open_head.forward(last)?.squeeze(1)?;
-        Ok(Velocity { velocity, open_logit, pointer: attention })
+        Ok(Velocity { velocity, open_logit, pointer: attention, goal: None })
     }
 
     /// Training forward, differentiable: the whole sequence in one pass. The suffix may hold K
@@ -508,7 +535,9 @@ impl FlowRam {
     /// are computed once per observation and the prefix tokens repeated.
     pub fn forward(&self, prefix: &PrefixInputs, suffix: &SuffixInputs) -> Result<Velocity> {
         let features = self.image_features(&prefix.images)?;
-        let (mut p_tokens, mut p_cond, mut memory) = self.prefix_tokens(&features, prefix)?;
+        let Prefix { tokens: mut p_tokens, condition: mut p_cond, mut memory, goal } =
+            self.prefix_tokens(&features, prefix)?;
+        let (goal_attention, mut goal) = goal.unzip();
         let (observations, samples) = (p_cond.dim(0)?, suffix.action.dim(0)?);
         if samples != observations {
             if observations == 0 || !samples.is_multiple_of(observations) {
@@ -522,29 +551,34 @@ impl FlowRam {
             p_tokens = p_tokens.index_select(&owner, 0)?;
             p_cond = p_cond.index_select(&owner, 0)?;
             memory = memory.map(|m| m.index_select(&owner)).transpose()?;
+            goal = goal.map(|g| g.index_select(&owner, 0)).transpose()?;
         }
-        let (s_tokens, s_cond) = self.suffix_tokens(&features, &p_cond, suffix)?;
+        let (s_tokens, s_cond) = self.suffix_tokens(&features, &p_cond, goal.as_ref(), suffix)?;
         let (lp, ls) = (p_tokens.dim(1)?, s_tokens.dim(1)?);
         let geometric = s_tokens.narrow(1, 0, ls - 1)?;
         let x = Tensor::cat(&[&p_tokens, &s_tokens], 1)?;
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
         let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer)
+        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer)?;
+        velocity.goal = goal_attention;
+        Ok(velocity)
     }
 
     /// Inference: encodes the observation once (image features, prefix scan state).
     pub fn encode(&self, prefix: &PrefixInputs) -> Result<EncodedObservation> {
         let features = self.image_features(&prefix.images)?.detach();
-        let (tokens, condition, pointer) = self.prefix_tokens(&features, prefix)?;
+        let Prefix { tokens, condition, memory, goal } = self.prefix_tokens(&features, prefix)?;
         let state = self.mamba.forward_state(&tokens, &Conditioning::Shared(condition.clone()), None)?;
         let pointer =
-            pointer.map(|m| PointerMemory { keys: m.keys.detach(), xyz: m.xyz.detach(), query: m.query.detach() });
-        Ok(EncodedObservation { features, state, condition, pointer })
+            memory.map(|m| PointerMemory { keys: m.keys.detach(), xyz: m.xyz.detach(), query: m.query.detach() });
+        let goal = goal.map(|(_, pointed)| pointed.detach());
+        Ok(EncodedObservation { features, state, condition, pointer, goal })
     }
 
     /// Inference: one flow step from the cached prefix.
     pub fn step(&self, encoded: &EncodedObservation, suffix: &SuffixInputs) -> Result<Velocity> {
-        let (tokens, condition) = self.suffix_tokens(&encoded.features, &encoded.condition, suffix)?;
+        let (tokens, condition) =
+            self.suffix_tokens(&encoded.features, &encoded.condition, encoded.goal.as_ref(), suffix)?;
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));

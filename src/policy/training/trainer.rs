@@ -92,6 +92,8 @@ impl Trainer {
         let k = t_cfg.flow_samples;
         let mut samples = Vec::with_capacity(b);
         let mut targets = Vec::with_capacity(b * k);
+        // The episode's last keyframe position, shifted with its observation (`flow.goal_weight`).
+        let mut goals = Vec::with_capacity(b * 3);
         let mut opens = Vec::with_capacity(b * k);
         let (lo, hi) = (ws.min(), ws.max());
         for _ in 0..b {
@@ -106,6 +108,9 @@ impl Trainer {
             for a in 0..3 {
                 a1[a] += shift[a];
             }
+            let episode = &data.episodes()[s.episode];
+            let last = Observation::episode_action(episode, episode.keyframes() - 1).to_action(ws)?;
+            goals.extend((0..3).map(|a| last[a] + shift[a]));
             for _ in 0..k {
                 targets.push(a1);
                 opens.push(if action.gripper_open { 1.0f32 } else { 0.0 });
@@ -137,6 +142,14 @@ impl Trainer {
             let position = a1.narrow(1, 0, 3)?;
             let pointer = pointer_loss(log_weights, candidates, &position, half_extent, config.flow.pointer_sigma)?;
             total = total.add(&pointer.affine(config.flow.pointer_weight, 0.0)?)?;
+        }
+        if let Some(log_weights) = &out.goal
+            && config.flow.goal_weight > 0.0
+        {
+            let half_extent: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / 2.0);
+            let goal = Tensor::from_vec(goals, (b, 3), &device())?;
+            let loss = pointer_loss(log_weights, &prefix.semantic_xyz, &goal, half_extent, config.flow.pointer_sigma)?;
+            total = total.add(&loss.affine(config.flow.goal_weight, 0.0)?)?;
         }
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;

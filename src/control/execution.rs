@@ -223,7 +223,12 @@ impl Execution {
             Phase::ReflexPending => {
                 // Back off to where the motion started (free of the contact, as the arm came
                 // from there), rather than hold: holding in contact keeps the obstacle pushing
-                // on joints weaker than the ones pressing.
+                // on joints weaker than the ones pressing. The reference first jumps to the
+                // measured joints: it was still driving into the obstacle (a jerk-limited
+                // trajectory takes about 0.5 s to turn), and pressing on while backing off piled
+                // up torque that, when the hand slipped free, whipped joints 1 and 3 past their
+                // velocity limits (37 of 1000 fault runs; the README's "bench faults").
+                controller.jump_reference(&state.q);
                 controller.set_goal(&self.start.unwrap_or(state.q));
                 self.phase = Phase::Stopping { since: state.time };
             }

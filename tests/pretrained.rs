@@ -67,17 +67,17 @@ fn distance_mm(a: &KeyframePose, b: &KeyframePose) -> f64 {
 /// The first keyframe of each task's held-out episode at [`SEED`], as the shipped checkpoint
 /// predicted it when it was shipped (world frame, m; 8 Euler steps, noise seed 0), and the
 /// expert's distance from it (mm), recorded in the model card.
-const OPEN_DRAWER: [f32; 3] = [0.45024967, 0.054697186, 0.99283826];
-const PUSH_BUTTONS: [f32; 3] = [0.5919938, -0.13033171, 0.84164774];
-const SLIDE_BLOCK: [f32; 3] = [0.49916738, 0.027517289, 0.8699573];
-const CLOSE_JAR: [f32; 3] = [0.60056305, 0.14053059, 0.8800402];
-const STACK_BLOCKS: [f32; 3] = [0.57818496, -0.17719387, 0.8923402];
+const OPEN_DRAWER: [f32; 3] = [0.4548059, 0.015514791, 0.9887396];
+const PUSH_BUTTONS: [f32; 3] = [0.57115304, -0.10033801, 0.84289306];
+const SLIDE_BLOCK: [f32; 3] = [0.49569273, 0.026223004, 0.8673488];
+const CLOSE_JAR: [f32; 3] = [0.6023735, 0.14914894, 0.87513095];
+const STACK_BLOCKS: [f32; 3] = [0.57306653, 0.12741494, 0.88992363];
 const SHIPPED_PREDICTIONS: [(&str, [f32; 3], f64); 5] = [
-    ("open_drawer", OPEN_DRAWER, 40.4),
-    ("push_buttons", PUSH_BUTTONS, 25.5),
-    ("slide_block", SLIDE_BLOCK, 55.2),
-    ("close_jar", CLOSE_JAR, 23.0),
-    ("stack_blocks", STACK_BLOCKS, 56.5),
+    ("open_drawer", OPEN_DRAWER, 5.3),
+    ("push_buttons", PUSH_BUTTONS, 55.2),
+    ("slide_block", SLIDE_BLOCK, 55.0),
+    ("close_jar", CLOSE_JAR, 17.3),
+    ("stack_blocks", STACK_BLOCKS, 252.1),
 ];
 
 /// Each prediction is within [`REPRODUCE_MM`] of the one recorded when the checkpoint shipped,
@@ -130,10 +130,11 @@ fn the_shipped_checkpoint_predicts_what_it_predicted_when_shipped() {
 }
 
 /// The goal of the policy issue: every task's first keyframe within 2 cm. The shipped checkpoint
-/// meets it on no task at this seed (23-56 mm, see SHIPPED_PREDICTIONS and the model card), so
-/// this test is run on demand (`cargo test --release --test pretrained -- --ignored`) until one does.
+/// meets it on open_drawer and close_jar at this seed and misses push_buttons, slide_block and
+/// stack_blocks (55-252 mm, see SHIPPED_PREDICTIONS and the model card), so this test is run on
+/// demand (`cargo test --release --test pretrained -- --ignored`) until it passes.
 #[test]
-#[ignore = "missed by the shipped checkpoint on every task at this seed (model card); run with --ignored"]
+#[ignore = "missed by the shipped checkpoint on three of five tasks at this seed (model card); run with --ignored"]
 fn the_shipped_checkpoint_predicts_every_tasks_first_keyframe_within_2_cm() {
     let report: Vec<(&str, f64)> = shipped_first_keyframes()
         .iter()

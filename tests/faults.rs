@@ -8,7 +8,7 @@
 //! overpowers the wrist (12 Nm joints against 87 Nm ones), which snaps past its velocity limit
 //! and rests ~2 mrad past joint 6's limit. With the contact guards on
 //! (`controllers/osc-contact-guard.toml`) no joint leaves its position limits and the reflex
-//! stops such motions; velocity limits are bounded there, not held (16 of 1000 runs; README,
+//! stops such motions; velocity limits are bounded there, not held (2 of 1000 runs; README,
 //! "bench faults").
 use flowram::rollout::faults::fault_runs;
 
@@ -42,20 +42,23 @@ fn with_the_contact_guards_a_blocked_tcp_leaves_no_joint_position_limit() {
     // velocity limit for a few ticks (the QP time-limit faults are wall-clock, so the runs are
     // not exactly reproducible): bounded, not zero.
     assert!(report.velocity_violations * 1000 < report.ticks, "{report:?}");
-    assert!(report.holds_reflex > 0, "no blocked TCP tripped the collision reflex: {report:?}");
 }
 
 #[test]
-fn after_the_collision_reflex_the_arm_backs_off_without_whipping_a_joint_past_its_velocity_limit() {
-    // Seeds 55 and 75 (no wall-clock faults, so reproducible): the TCP driven into the table
-    // trips the reflex. While the reference still drove into the table, backing off piled up
-    // torque, and when the hand slipped free joints 1 and 3 passed their velocity limits for
-    // 21 and 18 ticks; the reference now stops at the measured joints first.
+fn with_the_contact_guards_a_tcp_pressed_on_the_table_leaves_no_joint_past_its_velocity_limit() {
+    // Seeds 55 and 75 (no wall-clock faults, so reproducible) drive the TCP into the table.
+    // When the limit rows counted the table's reaction as a push to brake against, the arm
+    // pressed harder and harder (up to the rated torques), the reflex fired, and when the hand
+    // slipped free joints 1 and 3 passed their velocity limits (21 and 18 ticks). Now the
+    // reaction is not counted (the joint does not move) and the press stays moderate; on seed 55
+    // it still trips the reflex, whose back-off starts from the measured joints.
     let guard = flowram::deps::controllers_dir().join("osc-contact-guard.toml");
     for seed in [55, 75] {
         let report = fault_runs(1, seed, Some(&guard), |_| {}).unwrap();
         assert_eq!(report.faults.get("blocked_tcp"), Some(&1), "seed {seed}: {report:?}");
-        assert!(report.holds_reflex > 0, "seed {seed}: the reflex did not fire: {report:?}");
         assert_eq!((report.position_violations, report.velocity_violations), (0, 0), "seed {seed}: {report:?}");
+        if seed == 55 {
+            assert_eq!(report.holds_reflex, 1, "seed 55: the reflex did not fire: {report:?}");
+        }
     }
 }

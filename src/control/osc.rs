@@ -455,8 +455,10 @@ impl Osc {
     /// acceleration the joints will have: the commanded one plus `external` (M^-1 tau_ext). A
     /// push that would drive a joint toward a limit, or accelerate it past its acceleration
     /// limit, is braked against (within the torque and torque-rate limits); a gentler contact is
-    /// left to the compliant task. (Shifting only the position and velocity bounds was tried:
-    /// 3 of 12 fault runs then still left a limit.)
+    /// left to the compliant task. The external acceleration counts only as far as the joint
+    /// already moves the way it pushes: a contact's reaction to the arm's own press does not move
+    /// the joint, and braking against it ran the press up to the rated torques. (Shifting only
+    /// the position and velocity bounds was tried: 3 of 12 fault runs then still left a limit.)
     fn acceleration_bounds(
         &self,
         q: &JointVector,
@@ -481,8 +483,13 @@ impl Osc {
                 lo[i] = brake;
                 hi[i] = brake;
             }
-            lo[i] -= external[i];
-            hi[i] -= external[i];
+            // A contact's reaction to the arm's own push does not move the joint: counting it
+            // as an acceleration to brake against would push harder, raising the reaction
+            // (a run-away to the rated torques against the table). Count the external
+            // acceleration only as far as the joint already moves the way it pushes.
+            let moving = (dq[i] * external[i].signum() / EXTERNAL_MOTION).clamp(0.0, 1.0);
+            lo[i] -= external[i] * moving;
+            hi[i] -= external[i] * moving;
         }
         (lo, hi)
     }
@@ -495,6 +502,10 @@ impl Osc {
         OscOutput { tau, error: error.map(|v| if v.is_finite() { v } else { 0.0 }), fallback: true }
     }
 }
+
+/// Joint speed (rad/s) in the direction of an external push at which the push counts fully in
+/// the limit rows (`acceleration_bounds`); below it, in proportion.
+const EXTERNAL_MOTION: f64 = 0.05;
 
 /// P's pattern: column j < 7 holds rows 0..=j (H), column j >= 7 holds row j (slack).
 fn p_pattern() -> CscMatrix<'static> {

@@ -103,14 +103,16 @@ impl Trainer {
             let shift: [f32; 3] = std::array::from_fn(|a| 2.0 * aug_rng.random_range(-j..=j) / (hi[a] - lo[a]));
             let bj = t_cfg.brightness_jitter as f32;
             let brightness = 1.0 + aug_rng.random_range(-bj..=bj);
-            let action = Observation::episode_action(&data.episodes()[s.episode], s.k);
+            let episode = &data.episodes()[s.episode];
+            let action = Observation::episode_action(episode, s.k);
             let mut a1 = action.to_action(ws)?;
             for a in 0..3 {
                 a1[a] += shift[a];
             }
-            let episode = &data.episodes()[s.episode];
-            let last = Observation::episode_action(episode, episode.keyframes() - 1).to_action(ws)?;
-            goals.extend((0..3).map(|a| last[a] + shift[a]));
+            if config.flow.goal_weight > 0.0 {
+                let last = Observation::episode_action(episode, episode.keyframes() - 1).to_action(ws)?;
+                goals.extend((0..3).map(|a| last[a] + shift[a]));
+            }
             for _ in 0..k {
                 targets.push(a1);
                 opens.push(if action.gripper_open { 1.0f32 } else { 0.0 });
@@ -135,10 +137,10 @@ impl Trainer {
         let open_target = Tensor::from_vec(opens, b * k, &device())?;
         let (mut total, cfm, bce) =
             flow_matching_loss(&out.velocity, &target, &out.open_logit, &open_target, &weights)?;
+        let half_extent: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / 2.0);
         if let Some((log_weights, candidates)) = &out.pointer
             && config.flow.pointer_weight > 0.0
         {
-            let half_extent: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / 2.0);
             let position = a1.narrow(1, 0, 3)?;
             let pointer = pointer_loss(log_weights, candidates, &position, half_extent, config.flow.pointer_sigma)?;
             total = total.add(&pointer.affine(config.flow.pointer_weight, 0.0)?)?;
@@ -146,7 +148,6 @@ impl Trainer {
         if let Some(log_weights) = &out.goal
             && config.flow.goal_weight > 0.0
         {
-            let half_extent: [f32; 3] = std::array::from_fn(|a| (hi[a] - lo[a]) / 2.0);
             let goal = Tensor::from_vec(goals, (b, 3), &device())?;
             let loss = pointer_loss(log_weights, &prefix.semantic_xyz, &goal, half_extent, config.flow.pointer_sigma)?;
             total = total.add(&loss.affine(config.flow.goal_weight, 0.0)?)?;

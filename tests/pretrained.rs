@@ -30,9 +30,11 @@ fn expert(policy: &Policy, task: &str, variation: usize, seed: u64) -> Episode {
     episode
 }
 
+/// The keyframe the shipped checkpoint executes: its config's Euler steps and consensus samples.
 fn first_keyframe(policy: &mut Policy, observation: &Observation) -> KeyframePose {
-    let options = SamplingOptions { steps: policy.config().flow.sampling_steps, samples: 1, drs: true, seed: 0 };
-    policy.predict(observation, &options).unwrap()[0]
+    let flow = &policy.config().flow;
+    let options = SamplingOptions { steps: flow.sampling_steps, samples: flow.consensus_samples, drs: true, seed: 0 };
+    policy.predict_keyframe(observation, &options).unwrap()
 }
 
 #[test]

@@ -278,6 +278,10 @@ pub struct HeldOutArgs {
     /// Euler steps (default: the config's).
     #[arg(long)]
     steps: Option<usize>,
+    /// Keyframe samples per observation, scored their consensus (default: the config's
+    /// flow.consensus_samples).
+    #[arg(long)]
+    samples: Option<usize>,
     #[arg(long)]
     json: bool,
 }
@@ -289,11 +293,15 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     let steps = args.steps.unwrap_or(policy.config().flow.sampling_steps);
     let train_set = load_training_data(&args.train_data)?;
     let held_out = load_training_data(&args.data)?;
-    let report = heldout_errors(&mut policy, &train_set, &held_out, steps, &mut TaskBar::new("keyframes"))?;
+    let samples = args.samples.unwrap_or(policy.config().flow.consensus_samples);
+    let report = heldout_errors(&mut policy, &train_set, &held_out, steps, samples, &mut TaskBar::new("keyframes"))?;
     if args.json {
         return super::print_json(&report);
     }
-    println!("{} held-out keyframes of {} episodes, {} Euler steps:", report.keyframes, report.episodes, steps);
+    println!(
+        "{} held-out keyframes of {} episodes, {} Euler steps, consensus of {} samples:",
+        report.keyframes, report.episodes, steps, samples
+    );
     let line = |name: &str, e: &Errors| {
         println!(
             "  {name:>13}: position {:.1} mm mean / {:.1} median, rotation {:.1} deg mean / {:.1} median, gripper {:.0} % right",

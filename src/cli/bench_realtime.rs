@@ -85,8 +85,9 @@ impl Shuttle {
     fn infer(&mut self) {
         if let Some((policy, observation)) = self.policy.as_mut() {
             let n = self.inferences.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            let flow = &policy.config().flow;
             let options =
-                SamplingOptions { steps: policy.config().flow.sampling_steps, samples: 1, drs: true, seed: n };
+                SamplingOptions { steps: flow.sampling_steps, samples: flow.consensus_samples, drs: true, seed: n };
             if in_pool(|| policy.predict(observation, &options)).is_err() {
                 self.errors += 1;
             }

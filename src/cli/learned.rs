@@ -18,6 +18,10 @@ pub struct LearnedArgs {
     /// Euler steps (default: the checkpoint's flow.sampling_steps).
     #[arg(long)]
     pub steps: Option<usize>,
+    /// Keyframe samples per observation, the executed one their consensus (default: the
+    /// checkpoint's flow.consensus_samples).
+    #[arg(long)]
+    pub samples: Option<usize>,
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]
     pub no_drs: bool,
@@ -56,7 +60,7 @@ impl LearnedArgs {
         let policy = Policy::load(checkpoint, TextEncoder::load_installed()?)?;
         let options = SamplingOptions {
             steps: self.steps.unwrap_or(policy.config().flow.sampling_steps),
-            samples: 1,
+            samples: self.samples.unwrap_or(policy.config().flow.consensus_samples),
             drs: !self.no_drs,
             seed: 0,
         };

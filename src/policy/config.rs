@@ -117,6 +117,11 @@ pub enum InstructionPooling {
 pub struct FlowConfig {
     /// Euler steps at inference (Table C: 2 to 32).
     pub sampling_steps: usize,
+    /// Keyframe samples (source noises) drawn per observation at inference, as one batch; the
+    /// keyframe executed is their consensus, the medoid of their positions
+    /// ([`crate::policy::inference::consensus`]). 1 (the paper): the single sample.
+    #[serde(default = "one")]
+    pub consensus_samples: usize,
     /// Loss = cfm_weight * velocity MSE + open_weight * gripper BCE (supplementary: 100, 10).
     pub cfm_weight: f64,
     pub open_weight: f64,
@@ -235,6 +240,7 @@ impl PolicyConfig {
             ("model.expand", self.model.expand),
             ("model.layers", self.model.layers),
             ("flow.sampling_steps", self.flow.sampling_steps),
+            ("flow.consensus_samples", self.flow.consensus_samples),
             ("train.batch", self.train.batch),
             ("train.flow_samples", self.train.flow_samples),
             ("train.checkpoint_every", self.train.checkpoint_every),

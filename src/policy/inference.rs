@@ -175,6 +175,13 @@ impl Policy {
             .collect())
     }
 
+    /// Observation in, one keyframe out: the [`consensus`] of `options.samples` samples (with 1
+    /// sample, that sample).
+    pub fn predict_keyframe(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<KeyframePose> {
+        let poses = self.predict(observation, options)?;
+        consensus(&poses).ok_or_else(|| PolicyError::Invalid("sampling returned no keyframe".into()))
+    }
+
     /// Observation in, keyframes out.
     pub fn predict(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
         in_pool(|| {
@@ -182,5 +189,48 @@ impl Policy {
             let encoded = self.encode(&prepared)?;
             self.sample(&prepared, &encoded, options)
         })
+    }
+}
+
+/// The consensus of several samples of one observation's keyframe: the medoid of their positions
+/// (the sample with the least summed distance to the others), whole: its rotation and gripper
+/// come with it. Flow matching samples every mode of the demonstrations (the left or the right
+/// side of the block, one button or the next); a single sample lands on a minority mode as
+/// often as that mode's share, the medoid of several lands on the majority's. It is a sample the
+/// network drew, never an average of two modes. `None` for no samples.
+pub fn consensus(poses: &[KeyframePose]) -> Option<KeyframePose> {
+    let distance = |a: &KeyframePose, b: &KeyframePose| {
+        (0..3).map(|i| (f64::from(a.position[i]) - f64::from(b.position[i])).powi(2)).sum::<f64>().sqrt()
+    };
+    poses
+        .iter()
+        .map(|p| (p, poses.iter().map(|q| distance(p, q)).sum::<f64>()))
+        // the first of equals: with one sample, or identical samples, the first
+        .fold(None, |best: Option<(&KeyframePose, f64)>, (p, d)| match best {
+            Some((_, bd)) if bd <= d => best,
+            _ => Some((p, d)),
+        })
+        .map(|(p, _)| *p)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn at(x: f32, open: bool) -> KeyframePose {
+        KeyframePose { position: [x, 0.0, 0.2], quat_wxyz: [1.0, 0.0, 0.0, 0.0], gripper_open: open }
+    }
+
+    #[test]
+    fn the_consensus_is_the_majority_modes_sample_not_an_average() {
+        // Two samples near x = 0.3 (one closed), one at x = -0.3: the medoid is the middle one of
+        // the majority, whole, not the mean x = 0.1 between the modes.
+        let poses = [at(-0.3, true), at(0.31, false), at(0.30, true), at(0.32, true)];
+        let c = consensus(&poses).unwrap();
+        assert_eq!(c.position, [0.31, 0.0, 0.2]);
+        assert!(!c.gripper_open, "the medoid's own gripper comes with it");
+        assert_eq!(consensus(&poses[..1]).unwrap(), poses[0]);
+        assert_eq!(consensus(&[at(0.1, true), at(0.1, false)]).unwrap(), at(0.1, true));
+        assert!(consensus(&[]).is_none());
     }
 }

@@ -139,12 +139,19 @@ pub struct SuccessRecord {
     pub episodes: usize,
     pub seed: u64,
     pub max_keyframes: usize,
-    /// Sampling: Euler steps and DRS.
+    /// Sampling: Euler steps, keyframe samples per observation (their consensus executed; absent
+    /// in records from before there was a choice: 1) and DRS.
     pub steps: usize,
+    #[serde(default = "one_sample")]
+    pub samples: usize,
     pub drs: bool,
     pub cameras: Vec<String>,
     pub shard: Shard,
     pub outcomes: Vec<RecordedOutcome>,
+}
+
+fn one_sample() -> usize {
+    1
 }
 
 impl SuccessRecord {
@@ -168,6 +175,7 @@ impl SuccessRecord {
             seed: options.seed,
             max_keyframes: options.max_keyframes,
             steps: actor.options.steps,
+            samples: actor.options.samples,
             drs: actor.options.drs,
             cameras: options.cameras.clone(),
             shard: options.shard,
@@ -179,8 +187,9 @@ impl SuccessRecord {
     fn same_evaluation(&self, other: &Self) -> Result<(), String> {
         let fields = |r: &Self| {
             format!(
-                "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, drs {}, cameras {:?}",
-                r.checkpoint_digest, r.tasks, r.episodes, r.seed, r.max_keyframes, r.steps, r.drs, r.cameras
+                "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, drs {}, \
+                 cameras {:?}",
+                r.checkpoint_digest, r.tasks, r.episodes, r.seed, r.max_keyframes, r.steps, r.samples, r.drs, r.cameras
             )
         };
         let (a, b) = (fields(self), fields(other));
@@ -394,6 +403,8 @@ pub struct HeldOutReport {
     pub keyframes: usize,
     pub episodes: usize,
     pub steps: usize,
+    /// Keyframe samples per observation; the scored keyframe is their consensus.
+    pub samples: usize,
     pub model: Errors,
     pub training_mean: Errors,
     pub task_mean: Errors,
@@ -539,13 +550,15 @@ fn distance(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
 }
 
-/// Held-out keyframe errors of `policy` (`steps` Euler steps, DRS, noise seed = keyframe index)
-/// on every keyframe of `held_out`, against the mean keyframes of `train` (overall and per task).
+/// Held-out keyframe errors of `policy` (`steps` Euler steps, DRS, noise seed = keyframe index,
+/// the consensus of `samples` samples) on every keyframe of `held_out`, against the mean keyframes
+/// of `train` (overall and per task).
 pub fn heldout_errors(
     policy: &mut Policy,
     train: &TrainingData,
     held_out: &TrainingData,
     steps: usize,
+    samples: usize,
     progress: &mut dyn EvaluationProgress,
 ) -> Result<HeldOutReport, RolloutError> {
     let baseline = mean_keyframe(train.episodes().iter())?
@@ -572,8 +585,8 @@ pub fn heldout_errors(
             for k in 0..e.keyframes() {
                 let observation = Observation::from_episode(e, k)?;
                 let target = Observation::episode_action(e, k);
-                let options = SamplingOptions { steps, samples: 1, drs: true, seed: k as u64 };
-                let predicted = policy.predict(&observation, &options)?[0];
+                let options = SamplingOptions { steps, samples, drs: true, seed: k as u64 };
+                let predicted = policy.predict_keyframe(&observation, &options)?;
                 let row = |p: &KeyframePose| {
                     let (d, r) = p.error_to(&target);
                     (d, r, p.gripper_open == target.gripper_open)
@@ -588,7 +601,7 @@ pub fn heldout_errors(
                 if k == 0 {
                     for instruction in other_instructions(e, SWAPS_PER_EPISODE) {
                         let swapped = Observation { instruction, ..observation.clone() };
-                        let moved = policy.predict(&swapped, &options)?[0];
+                        let moved = policy.predict_keyframe(&swapped, &options)?;
                         swaps.push((ti, f64::from(moved.error_to(&predicted).0) * 1e3));
                     }
                 }
@@ -621,6 +634,7 @@ pub fn heldout_errors(
         keyframes: all.keyframes,
         episodes: held_out.episodes().len(),
         steps,
+        samples,
         model: all.model,
         training_mean: all.training_mean,
         task_mean: all.task_mean,

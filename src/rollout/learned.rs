@@ -14,7 +14,7 @@ pub const DEFAULT_CAMERAS: [&str; 4] = ["front", "left_shoulder", "right_shoulde
 /// A trained policy acting in lock-step with the simulation.
 pub struct FlowRamActor {
     pub policy: Policy,
-    /// Euler steps, samples (the first is executed), DRS; `seed` is the noise seed of an
+    /// Euler steps, samples (their consensus is executed), DRS; `seed` is the noise seed of an
     /// episode's first keyframe, keyframe k uses `seed + k` (an episode is the same whether run
     /// alone or as one of many).
     pub options: SamplingOptions,
@@ -38,9 +38,8 @@ impl KeyframePolicy for FlowRamActor {
         let observation = policy_observation(instruction, observation)?;
         let options = SamplingOptions { seed: self.options.seed + k as u64, ..self.options };
         let start = Instant::now();
-        let poses = self.policy.predict(&observation, &options)?;
+        let pose = self.policy.predict_keyframe(&observation, &options)?;
         self.inference_ms.push(start.elapsed().as_secs_f64() * 1e3);
-        let pose = poses.first().ok_or(RolloutError::NoKeyframe)?;
         Ok(Keyframe {
             position: pose.position.map(f64::from),
             quat_wxyz: pose.quat_wxyz.map(f64::from),

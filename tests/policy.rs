@@ -514,6 +514,8 @@ fn shipped_policy_configs_load_and_the_ten_task_box_holds_every_expert_keyframe(
     same.observation.workspace = cpu.observation.workspace;
     same.model.position_pointer = true;
     same.flow.pointer_weight = cpu.flow.pointer_weight;
+    // and from before the consensus of samples (docs/experiments.md, C8 and RN5)
+    same.flow.consensus_samples = cpu.flow.consensus_samples;
     assert_eq!(same, cpu);
     let ws = &ten.observation.workspace;
     for task in flowram::tasks::all() {

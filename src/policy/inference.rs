@@ -197,14 +197,20 @@ impl Policy {
 /// come with it. Flow matching samples every mode of the demonstrations (the left or the right
 /// side of the block, one button or the next); a single sample lands on a minority mode as
 /// often as that mode's share, the medoid of several lands on the majority's. It is a sample the
-/// network drew, never an average of two modes. `None` for no samples.
+/// network drew, never an average of two modes. Samples with a non-finite position take no part
+/// (if all have one, the first is returned, for the caller's checks to reject). `None` for no
+/// samples.
 pub fn consensus(poses: &[KeyframePose]) -> Option<KeyframePose> {
     let distance = |a: &KeyframePose, b: &KeyframePose| {
         (0..3).map(|i| (f64::from(a.position[i]) - f64::from(b.position[i])).powi(2)).sum::<f64>().sqrt()
     };
-    poses
+    let finite: Vec<&KeyframePose> = poses.iter().filter(|p| p.position.iter().all(|v| v.is_finite())).collect();
+    if finite.is_empty() {
+        return poses.first().copied();
+    }
+    finite
         .iter()
-        .map(|p| (p, poses.iter().map(|q| distance(p, q)).sum::<f64>()))
+        .map(|&p| (p, finite.iter().map(|q| distance(p, q)).sum::<f64>()))
         // the first of equals: with one sample, or identical samples, the first
         .fold(None, |best: Option<(&KeyframePose, f64)>, (p, d)| match best {
             Some((_, bd)) if bd <= d => best,
@@ -232,5 +238,9 @@ mod tests {
         assert_eq!(consensus(&poses[..1]).unwrap(), poses[0]);
         assert_eq!(consensus(&[at(0.1, true), at(0.1, false)]).unwrap(), at(0.1, true));
         assert!(consensus(&[]).is_none());
+        // A non-finite sample takes no part; all non-finite: the first, for the caller to reject.
+        let nan = at(f32::NAN, true);
+        assert_eq!(consensus(&[at(0.2, true), nan, at(0.21, false), at(0.5, true)]).unwrap(), at(0.21, false));
+        assert!(consensus(&[nan, nan]).unwrap().position[0].is_nan());
     }
 }

@@ -135,6 +135,44 @@ fn policy_commands_name_what_is_missing() {
 }
 
 #[test]
+fn zero_samples_or_euler_steps_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let bad = dir.path().join("no_samples.toml");
+    let text = std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml")).unwrap();
+    assert!(text.contains("\nconsensus_samples = "), "cpu.toml sets flow.consensus_samples");
+    std::fs::write(
+        &bad,
+        text.lines()
+            .map(|line| if line.starts_with("consensus_samples") { "consensus_samples = 0" } else { line })
+            .collect::<Vec<_>>()
+            .join("\n"),
+    )
+    .unwrap();
+    let err = flowram::policy::config::PolicyConfig::from_toml_file(&bad).unwrap_err().to_string();
+    assert!(err.contains("flow.consensus_samples") && err.contains("no_samples.toml"), "{err}");
+
+    // At the command line, before anything is loaded or run: a usage error (exit code 2) that
+    // names the option and what it expects.
+    let episode = dir.path().join("episode.safetensors");
+    let cases: [&[&str]; 5] = [
+        &["run", "--task", "open_drawer", "--policy", "flowram", "--samples", "0"],
+        &["run", "--task", "open_drawer", "--policy", "flowram", "--steps", "0"],
+        &["bench", "success", "--tasks", "open_drawer", "--samples", "0"],
+        &["predict", "--checkpoint", "x", "--episode", "y", "--keyframe", "0", "--samples", "0"],
+        &["predict", "--checkpoint", "x", "--episode", "y", "--keyframe", "0", "--steps", "1.5"],
+    ];
+    for args in cases {
+        let out = common::flowram().args(args).current_dir(dir.path()).output().unwrap();
+        let err = stderr_of(&out);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: a usage error; stderr: {err}");
+        let option = if args.contains(&"--samples") { "--samples" } else { "--steps" };
+        assert!(err.contains(option) && err.contains("at least 1"), "{args:?}: {err}");
+        assert!(!err.contains("panicked"), "{err}");
+    }
+    assert!(!episode.exists() && std::fs::read_dir(dir.path()).unwrap().count() == 1, "nothing written");
+}
+
+#[test]
 fn closed_loop_commands_name_what_is_missing() {
     let dir = tempfile::tempdir().unwrap();
     // Without --checkpoint, the shipped checkpoint acts.

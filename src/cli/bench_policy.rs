@@ -276,11 +276,11 @@ pub struct HeldOutArgs {
     #[arg(long, value_delimiter = ',', required = true)]
     train_data: Vec<PathBuf>,
     /// Euler steps (default: the config's).
-    #[arg(long)]
+    #[arg(long, value_parser = super::at_least_one)]
     steps: Option<usize>,
     /// Keyframe samples per observation, scored their consensus (default: the config's
     /// flow.consensus_samples).
-    #[arg(long)]
+    #[arg(long, value_parser = super::at_least_one)]
     samples: Option<usize>,
     #[arg(long)]
     json: bool,

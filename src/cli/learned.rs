@@ -16,11 +16,11 @@ pub struct LearnedArgs {
     #[arg(long)]
     pub checkpoint: Option<PathBuf>,
     /// Euler steps (default: the checkpoint's flow.sampling_steps).
-    #[arg(long)]
+    #[arg(long, value_parser = super::at_least_one)]
     pub steps: Option<usize>,
     /// Keyframe samples per observation, the executed one their consensus (default: the
     /// checkpoint's flow.consensus_samples).
-    #[arg(long)]
+    #[arg(long, value_parser = super::at_least_one)]
     pub samples: Option<usize>,
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]

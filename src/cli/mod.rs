@@ -115,3 +115,13 @@ fn print_json(value: &impl serde::Serialize) -> anyhow::Result<()> {
     println!("{}", serde_json::to_string(value)?);
     Ok(())
 }
+
+/// clap parser for counts that must be at least 1 (`--samples`, `--steps`): 0 is refused at the
+/// command line, with what was expected, instead of deep inside the sampler.
+fn at_least_one(text: &str) -> Result<usize, String> {
+    match text.parse::<usize>() {
+        Ok(0) => Err("expected a whole number of at least 1, got 0".into()),
+        Ok(n) => Ok(n),
+        Err(_) => Err(format!("expected a whole number of at least 1, got `{text}`")),
+    }
+}

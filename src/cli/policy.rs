@@ -96,9 +96,10 @@ pub struct PredictArgs {
     #[arg(long)]
     keyframe: usize,
     /// Euler steps (default: the config's flow.sampling_steps).
-    #[arg(long)]
+    #[arg(long, value_parser = super::at_least_one)]
     steps: Option<usize>,
-    #[arg(long, default_value_t = 1)]
+    /// Keyframe samples to draw (all are printed).
+    #[arg(long, default_value_t = 1, value_parser = super::at_least_one)]
     samples: usize,
     /// The w/o-DRS ablation: geometric tokens sampled globally at every step.
     #[arg(long)]

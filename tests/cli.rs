@@ -309,3 +309,59 @@ fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
         assert!(!err.contains("panicked"), "{args:?}: {err}");
     }
 }
+
+/// A results file of `bench success --out` on two tasks, seeds 1000-1003, with these successes.
+fn results_file(path: &std::path::Path, digest: &str, successes: [[bool; 4]; 2], seed: u64) {
+    let mut outcomes = Vec::new();
+    // recorded out of order, as shards merged or resumed runs may leave them
+    for i in (0..4).rev() {
+        for (task, row) in successes.iter().enumerate() {
+            outcomes.push(serde_json::json!({
+                "task": task, "seed": seed + i as u64, "variation": i, "success": row[i],
+                "keyframes": 4, "reached": 4, "inference_ms": 20.0
+            }));
+        }
+    }
+    let record = serde_json::json!({
+        "format": "flowram-success-v1", "revision": "test", "checkpoint": "a", "checkpoint_digest": digest,
+        "tasks": ["open_drawer", "push_buttons"], "episodes": 4, "seed": seed, "max_keyframes": 25, "steps": 8,
+        "samples": 1, "drs": true, "cameras": ["front"], "shard": {"index": 0, "count": 1}, "outcomes": outcomes
+    });
+    std::fs::write(path, serde_json::to_vec(&record).unwrap()).unwrap();
+}
+
+#[test]
+fn bench_compare_pairs_two_results_files_on_their_seeds() {
+    let dir = tempfile::tempdir().unwrap();
+    let (a, b, other) = (dir.path().join("a.json"), dir.path().join("b.json"), dir.path().join("c.json"));
+    results_file(&a, "aa", [[true, true, true, false], [true, false, false, false]], 1000);
+    results_file(&b, "bb", [[false, true, false, true], [true, false, false, false]], 1000);
+    results_file(&other, "cc", [[true; 4], [true; 4]], 2000);
+    let out = common::flowram().args(["bench", "compare", "--json"]).arg(&a).arg(&b).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = report["comparison"].as_array().unwrap();
+    let row = |task: &str| rows.iter().find(|r| r["task"] == task).unwrap();
+    // open_drawer: seeds 1000 and 1002 only by a, 1003 only by b; push_buttons: the same
+    assert_eq!(
+        (row("open_drawer")["only_checkpoint"].as_u64(), row("open_drawer")["only_baseline"].as_u64()),
+        (Some(2), Some(1))
+    );
+    assert_eq!(
+        (row("push_buttons")["only_checkpoint"].as_u64(), row("push_buttons")["only_baseline"].as_u64()),
+        (Some(0), Some(0))
+    );
+    assert_eq!((row("all")["only_checkpoint"].as_u64(), row("all")["only_baseline"].as_u64()), (Some(2), Some(1)));
+    assert_eq!(report["checkpoint"][0]["successes"].as_u64(), Some(3));
+    assert_eq!(report["baseline"][0]["successes"].as_u64(), Some(2));
+
+    // other seeds: refused, naming both files
+    let out = common::flowram().args(["bench", "compare"]).arg(&a).arg(&other).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("a.json") && err.contains("c.json") && err.contains("same episodes"), "{err}");
+    // a missing file says how to make one
+    let out = common::flowram().args(["bench", "compare"]).arg(&a).arg(dir.path().join("none.json")).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("none.json") && err.contains("bench success --out"), "{err}");
+}

@@ -29,6 +29,23 @@ fn shipped_profiles_load() {
     let l = JointLimits::panda().unwrap();
     assert_eq!(l.torque[0], 87.0);
     assert_eq!(l.torque_rate[6], 1000.0);
+    assert!(c.external_torque_in_limits && c.reflex_enabled, "the contact guards are on by default");
+}
+
+#[test]
+fn the_unguarded_profile_is_the_default_with_the_contact_guards_off() {
+    let unguarded = std::fs::read_to_string(controllers_dir().join("osc-unguarded.toml")).unwrap();
+    let u = OscConfig::from_config(ConfigFile::parse(Path::new("osc-unguarded.toml"), &unguarded).unwrap()).unwrap();
+    assert!(!u.external_torque_in_limits && !u.reflex_enabled);
+    // Line for line the default's, but for its header comment and the two switches.
+    let body = |text: &str| -> Vec<String> {
+        text.lines()
+            .skip_while(|l| l.starts_with('#'))
+            .map(|l| l.replace("external_torque_in_limits = false", "external_torque_in_limits = true"))
+            .map(|l| if l == "enabled = false" { "enabled = true".to_string() } else { l })
+            .collect()
+    };
+    assert_eq!(body(&unguarded), body(&osc_text()), "osc-unguarded.toml drifted from osc.toml");
 }
 
 #[test]

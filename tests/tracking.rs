@@ -144,12 +144,12 @@ fn an_interrupted_motion_stays_continuous() {
 #[test]
 fn with_the_contact_guards_a_keyframe_inside_the_table_is_not_reached_and_no_limit_is_exceeded() {
     // The fault bench's blocked TCP: a pose 4 cm below the table top, straight down from home,
-    // with controllers/osc-contact-guard.toml. The arm presses compliantly and settles short
+    // with the contact guards of controllers/osc.toml. The arm presses compliantly and settles short
     // (below the collision reflex); the joint-limit constraints, which count the table's push,
     // keep every joint inside its limits, and the next keyframe is reached as usual.
     let mut world = World::load_named("default").unwrap();
     let limits = JointLimits::panda().unwrap();
-    let guard = OscConfig::load(&flowram::deps::controllers_dir().join("osc-contact-guard.toml")).unwrap();
+    let guard = OscConfig::default_profile().unwrap();
     assert!(guard.external_torque_in_limits && guard.reflex_enabled);
     let mut runner = build_runner(&world, guard).unwrap();
     runner.enable_log(60.0, world.timestep());

@@ -21,6 +21,10 @@ pub enum BenchCommand {
     Heldout(super::bench_policy::HeldOutArgs),
     /// Closed-loop success rate of a trained policy on held-out seeds of tasks.
     Success(super::bench_policy::SuccessBenchArgs),
+    /// Two results files of `bench success --out` on the same tasks and seeds, paired: both
+    /// success tables and the seeds only one of them solved (exact McNemar p), per task and over
+    /// all.
+    Compare(super::bench_policy::CompareArgs),
     /// Expert success, keyframes per episode and episodes per minute (no cameras) of tasks over
     /// seeded episodes.
     Experts(ExpertsBenchArgs),
@@ -187,6 +191,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Policy(args) => super::bench_policy::bench_cmd(args),
         BenchCommand::Heldout(args) => super::bench_policy::heldout_cmd(args),
         BenchCommand::Success(args) => super::bench_policy::success_cmd(args),
+        BenchCommand::Compare(args) => super::bench_policy::compare_cmd(args),
         BenchCommand::Experts(args) => experts(args),
         BenchCommand::Shards(args) => shards(args),
         BenchCommand::Realtime(args) => super::bench_realtime::realtime(args),

@@ -1,6 +1,6 @@
 //! `flowram bench policy` (latency and training-step time), `bench heldout` (held-out keyframe
 //! errors against trivial baselines) and `bench success` (closed-loop success rates).
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
@@ -370,6 +370,49 @@ pub struct SuccessBenchArgs {
     json: bool,
 }
 
+#[derive(Debug, Args)]
+pub struct CompareArgs {
+    /// The results file of the arm under test (`bench success --out`, whole or merged).
+    results: PathBuf,
+    /// The results file it is compared with: the same tasks, seeds and episodes.
+    baseline: PathBuf,
+    #[arg(long)]
+    json: bool,
+}
+
+/// `flowram bench compare`: two recorded evaluations paired on their seeds.
+pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
+    let read = |path: &Path| -> anyhow::Result<SuccessRecord> {
+        let mut record = SuccessRecord::read(path)?.ok_or_else(|| {
+            anyhow::anyhow!("{}: no such results file (write one with `bench success --out`)", path.display())
+        })?;
+        anyhow::ensure!(
+            record.shard.is_whole() && record.complete(),
+            "{}: an incomplete or single-shard results file; finish it (re-run the same `bench success`) or `flowram \
+             merge` its shards first",
+            path.display()
+        );
+        record.outcomes.sort_by_key(|o| (o.task, o.outcome.seed));
+        Ok(record)
+    };
+    let (a, b) = (read(&args.results)?, read(&args.baseline)?);
+    anyhow::ensure!(
+        (&a.tasks, a.seed, a.episodes) == (&b.tasks, b.seed, b.episodes),
+        "{} and {} are not on the same episodes: tasks {:?}, seeds {}+{} against tasks {:?}, seeds {}+{}",
+        args.results.display(),
+        args.baseline.display(),
+        a.tasks,
+        a.seed,
+        a.episodes,
+        b.tasks,
+        b.seed,
+        b.episodes
+    );
+    let (reports, baseline_reports) = (a.table(), b.table());
+    let comparison = paired_comparison(&reports, &baseline_reports);
+    print_comparison(&args.baseline, &reports, &baseline_reports, &comparison, args.json)
+}
+
 /// One task's (or all tasks', `task = "all"`) paired comparison of two checkpoints.
 #[derive(Debug, Serialize)]
 struct PairedComparison {
@@ -441,25 +484,32 @@ pub fn success_cmd(args: SuccessBenchArgs) -> anyhow::Result<()> {
         &mut TaskBar::new("baseline"),
     )?;
     let comparison = paired_comparison(&reports, &baseline_reports);
-    if args.json {
+    print_comparison(baseline, &reports, &baseline_reports, &comparison, args.json)
+}
+
+/// Both success tables and their paired comparison (`bench success --baseline`, `bench compare`).
+fn print_comparison(
+    baseline: &Path,
+    reports: &[TaskSuccess],
+    baseline_reports: &[TaskSuccess],
+    comparison: &[PairedComparison],
+    json: bool,
+) -> anyhow::Result<()> {
+    if json {
         #[derive(Serialize)]
         struct Compared<'a> {
             checkpoint: &'a [TaskSuccess],
             baseline: &'a [TaskSuccess],
             comparison: &'a [PairedComparison],
         }
-        return super::print_json(&Compared {
-            checkpoint: &reports,
-            baseline: &baseline_reports,
-            comparison: &comparison,
-        });
+        return super::print_json(&Compared { checkpoint: reports, baseline: baseline_reports, comparison });
     }
     println!("checkpoint:");
-    print_success_table(&reports);
+    print_success_table(reports);
     println!("baseline ({}):", baseline.display());
-    print_success_table(&baseline_reports);
+    print_success_table(baseline_reports);
     println!("paired on the same seeds:");
-    for c in &comparison {
+    for c in comparison {
         println!(
             "  {}: {} seeds solved only by the checkpoint, {} only by the baseline (exact McNemar p = {:.3})",
             c.task, c.only_checkpoint, c.only_baseline, c.p_value

@@ -225,8 +225,8 @@ pub struct FaultsBenchArgs {
     runs: u64,
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Controller profile (TOML); default controllers/osc.toml
-    /// (controllers/osc-contact-guard.toml turns the contact guards on).
+    /// Controller profile (TOML); default controllers/osc.toml (contact guards on;
+    /// controllers/osc-unguarded.toml turns them off).
     #[arg(long)]
     config: Option<std::path::PathBuf>,
     #[arg(long)]

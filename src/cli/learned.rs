@@ -26,7 +26,8 @@ pub struct LearnedArgs {
     #[arg(long)]
     pub no_drs: bool,
     /// Stop after this many predicted keyframes if the task has not succeeded (25: RLBench's
-    /// evaluation limit, which 3D Diffuser Actor and FlowRAM use; stack_blocks' expert needs 17).
+    /// evaluation limit, which 3D Diffuser Actor and FlowRAM use; stack_blocks' expert needs six
+    /// per block, 12-24).
     #[arg(long, default_value_t = 25)]
     pub max_keyframes: usize,
     /// Cameras the policy sees, in the training datasets' order.

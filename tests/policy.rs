@@ -412,6 +412,53 @@ fn point_colour_adds_a_function_of_each_feature_pixels_raw_colour() {
 }
 
 #[test]
+fn the_relational_pointer_needs_both_pointers_starts_as_one_pointer_and_learns_its_beta() {
+    use flowram::policy::inputs::{Augmentation, prefix_inputs, suffix_inputs};
+    let mut config = tiny_config();
+    config.model.position_pointer = true;
+    config.model.instruction_pointer = false;
+    config.model.relational_pointer = true;
+    let err = config.validate().unwrap_err().to_string();
+    assert!(err.contains("model.relational_pointer") && err.contains("instruction_pointer"), "{err}");
+    config.model.instruction_pointer = true;
+    config.flow.goal_weight = 1.0;
+    config.train.batch = 8;
+    config.validate().unwrap();
+    let mut single = config.clone();
+    single.model.relational_pointer = false;
+    // Same seed and variable names, so the same weights; beta starts at zero, so the same output,
+    // through the training forward and through the cached inference path.
+    let observation = Observation::from_episode(demonstration(), 0).unwrap();
+    let action = [[0.1f32, -0.2, 0.3, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]];
+    let outputs = |config: &PolicyConfig| -> (Vec<f32>, Vec<f32>) {
+        let mut policy = Policy::random(config, text()).unwrap();
+        let prepared = policy.prepare(&observation).unwrap();
+        let observations = [(&prepared, Augmentation::NONE)];
+        let prefix = prefix_inputs(config, &observations).unwrap();
+        let suffix = suffix_inputs(config, &observations, &[0], &action, &[0.3], &config.radius_schedule).unwrap();
+        let whole = policy.model.forward(&prefix, &suffix).unwrap().velocity.flatten_all().unwrap().to_vec1().unwrap();
+        let encoded = policy.model.encode(&prefix).unwrap();
+        let cached = policy.model.step(&encoded, &suffix).unwrap().velocity.flatten_all().unwrap().to_vec1().unwrap();
+        (whole, cached)
+    };
+    let (relational, single) = (outputs(&config), outputs(&single));
+    for (a, b) in relational.0.iter().zip(&single.0).chain(relational.1.iter().zip(&single.1)) {
+        assert!((a - b).abs() < 1e-5, "relational {relational:?}, single pointer {single:?}");
+    }
+    // Training reaches beta (the flow loss's gradient through p - g).
+    let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
+    let mut text = text();
+    let mut trainer = Trainer::new(&config).unwrap();
+    for _ in 0..20 {
+        trainer.train_step(&mut data, &mut text).unwrap();
+    }
+    let vars = trainer.varmap.data().lock().unwrap();
+    let weight = vars.get("relation.weight").expect("the relational pointer's beta is a trained variable");
+    let norm: f32 = weight.as_tensor().sqr().unwrap().sum_all().unwrap().to_scalar().unwrap();
+    assert!(norm > 0.0, "beta's weights are still zero after 20 steps");
+}
+
+#[test]
 fn configs_written_before_the_conditioning_options_load_with_the_papers_choices() {
     // A checkpoint's config.json from before model.instruction_adaln, flow.prediction and
     // flow.time_sampling existed: it must load, and mean what it meant then.
@@ -423,6 +470,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("model", "instruction_pointer"),
         ("model", "position_pointer"),
         ("model", "point_colour"),
+        ("model", "relational_pointer"),
         ("flow", "pointer_weight"),
         ("flow", "pointer_sigma"),
     ] {
@@ -433,6 +481,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.prediction, flowram::policy::flow::Prediction::Velocity);
     assert_eq!(config.flow.time_sampling, flowram::policy::flow::FlowTimeSampling::Uniform);
     assert!(!config.model.instruction_pointer && !config.model.position_pointer && !config.model.point_colour);
+    assert!(!config.model.relational_pointer);
     assert_eq!((config.flow.pointer_weight, config.flow.pointer_sigma), (0.0, 0.02));
     config.validate().unwrap();
 }

@@ -99,6 +99,16 @@ pub struct ModelConfig {
     /// white, silver, gray and black). Off (the paper): tokens carry the encoder's features only.
     #[serde(default)]
     pub point_colour: bool,
+    /// Place the position relative to two pointed positions: the position pointer's p and the
+    /// instruction pointer's g (needs both pointers), as p + beta * (p - g) + offset, with beta a
+    /// linear function of the action token's output (zero at initialisation, so training starts
+    /// as without it). Some keyframes are defined by two objects rather than one: slide_block's
+    /// first ones are beside the block on the side away from the named zone (beta about 0.3 with
+    /// p on the block and g on the zone), which a pointer whose keys are local token features
+    /// cannot point at (the table there looks the same on every side), and which the offset head
+    /// alone did not learn (docs/experiments.md, sessions 4-11). Off (the paper): one pointer.
+    #[serde(default)]
+    pub relational_pointer: bool,
 }
 
 /// How the instruction is pooled into one vector for the instruction AdaLN
@@ -267,6 +277,13 @@ impl PolicyConfig {
                 "flow.prediction",
                 "\"endpoint\" when model.position_pointer = true (the pointer predicts the endpoint's position)",
                 format!("{:?}", self.flow.prediction),
+            );
+        }
+        if self.model.relational_pointer && !(self.model.position_pointer && self.model.instruction_pointer) {
+            return bad(
+                "model.relational_pointer",
+                "false unless model.position_pointer = true and model.instruction_pointer = true (it relates their two pointed positions)",
+                "true".to_string(),
             );
         }
         if self.flow.pointer_weight > 0.0 && !self.model.position_pointer {

@@ -34,6 +34,10 @@
 //! instruction over the semantic tokens (their features plus the encoding of their weighted mean
 //! position), and the action token gets the encoding of its offset from that position.
 //! `flow.goal_weight` trains that attention to point at the episode's last keyframe.
+//!
+//! With `model.relational_pointer` (both pointers), the position is p + beta * (p - g) + offset,
+//! p the position pointer's pointed position, g the instruction pointer's, beta a linear readout
+//! of the action token (zero at initialisation).
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
@@ -288,6 +292,8 @@ pub struct FlowRam {
     pointer: Option<InstructionPointer>,
     /// `model.position_pointer`.
     position_pointer: Option<PositionPointer>,
+    /// `model.relational_pointer`: beta of the position p + beta * (p - g) + offset.
+    relation: Option<Linear>,
     /// `model.point_colour`: raw mean colour of a feature pixel -> C.
     colour_mlp: Option<Mlp>,
     time_mlp: Mlp,
@@ -347,6 +353,15 @@ impl FlowRam {
             } else {
                 None
             },
+            relation: if config.model.relational_pointer {
+                // Zero at initialisation: training starts from the single pointer.
+                let vb = vb.pp("relation");
+                let w = vb.get_with_hints((1, c), "weight", candle_nn::Init::Const(0.0))?;
+                let b = vb.get_with_hints(1, "bias", candle_nn::Init::Const(0.0))?;
+                Some(Linear::new(w, Some(b)))
+            } else {
+                None
+            },
             colour_mlp: if config.model.point_colour { Some(Mlp::new(3, c, c, vb.pp("colour_mlp"))?) } else { None },
             time_mlp: Mlp::new(c, c, c, vb.pp("time_mlp"))?,
             mamba: MambaStack::new(&mamba_config, vb.pp("mamba"))?,
@@ -397,6 +412,9 @@ impl FlowRam {
             + 2.0 * ((o.semantic_tokens + 2) * c * c) as f64 * pointer as f64
             + scan(o.language_tokens + o.semantic_tokens + pointer, false);
         let mut heads = 2.0 * (3.0 * (c * c) as f64 + (c * (3 + 6 + 1)) as f64);
+        if self.relation.is_some() {
+            heads += 2.0 * c as f64 + 9.0;
+        }
         let mut pointer_prefix = 0.0;
         if self.position_pointer.is_some() {
             // Keys of the semantic tokens and the instruction's query once; per step the geometric
@@ -505,14 +523,31 @@ impl FlowRam {
     }
 
     /// The heads on the action token's output `last` [B, C]; with the position pointer, `pointer`
-    /// holds its memory and the suffix's geometric tokens [B, N2, C] and positions [B, N2, 3].
-    fn heads(&self, last: &Tensor, pointer: Option<(&PointerMemory, &Tensor, &Tensor)>) -> Result<Velocity> {
+    /// holds its memory and the suffix's geometric tokens [B, N2, C] and positions [B, N2, 3];
+    /// `goal` [B, 3] is the instruction pointer's pointed position (`model.relational_pointer`).
+    fn heads(
+        &self,
+        last: &Tensor,
+        pointer: Option<(&PointerMemory, &Tensor, &Tensor)>,
+        goal: Option<&Tensor>,
+    ) -> Result<Velocity> {
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
         match (&self.position_pointer, pointer) {
             (Some(p), Some((memory, geometric, xyz))) => {
                 let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last)?;
                 position = position.add(&pointed)?;
+                if let Some(relation) = &self.relation {
+                    let goal = goal.ok_or_else(|| {
+                        PolicyError::Invalid(
+                            "the model relates two pointers (model.relational_pointer) but no instruction-pointer \
+                             position was given: encode the observation with this model"
+                                .into(),
+                        )
+                    })?;
+                    let beta = relation.forward(last)?; // [B, 1]
+                    position = position.add(&pointed.sub(goal)?.broadcast_mul(&beta)?)?;
+                }
                 attention = Some((log_weights, candidates));
             }
             (None, _) => {}
@@ -559,7 +594,7 @@ impl FlowRam {
         let x = Tensor::cat(&[&p_tokens, &s_tokens], 1)?;
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
         let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer)?;
+        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer, goal.as_ref())?;
         velocity.goal = goal_attention;
         Ok(velocity)
     }
@@ -582,7 +617,7 @@ impl FlowRam {
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        self.heads(&last, pointer)
+        self.heads(&last, pointer, encoded.goal.as_ref())
     }
 }
 

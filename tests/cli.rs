@@ -365,3 +365,33 @@ fn bench_compare_pairs_two_results_files_on_their_seeds() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(out.status.code() == Some(1) && err.contains("none.json") && err.contains("bench success --out"), "{err}");
 }
+
+#[test]
+fn bench_grid_tabulates_and_plots_recorded_evaluations() {
+    // Two real evaluations the project records (docs/results): the shipped checkpoint and arm J2.
+    let (shipped, j2) = ("docs/results/five-tasks-c8-guards.json", "docs/results/five-tasks-j2.json");
+    let dir = tempfile::tempdir().unwrap();
+    let plot = dir.path().join("grid.png");
+    let out = common::flowram().args(["bench", "grid", "--json", j2, shipped, "--plot"]).arg(&plot).output().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let cells: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let summary: Vec<(&str, u64, u64, u64)> = cells
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            let n = |k: &str| c[k].as_u64().unwrap();
+            (c["arm"].as_str().unwrap(), n("steps"), n("successes"), n("episodes"))
+        })
+        .collect();
+    assert_eq!(summary, [("five-tasks", 8, 107, 250), ("five-tasks-fw", 8, 115, 250)]);
+    assert!(std::fs::metadata(&plot).unwrap().len() > 1000, "the plot is written");
+
+    // The same cell twice, and a missing file: refused, saying why.
+    let out = common::flowram().args(["bench", "grid", j2, j2]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("same cell"), "{err}");
+    let out = common::flowram().args(["bench", "grid", j2, "none.json"]).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.code() == Some(1) && err.contains("none.json") && err.contains("bench success --out"), "{err}");
+}

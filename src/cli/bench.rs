@@ -25,6 +25,10 @@ pub enum BenchCommand {
     /// success tables and the seeds only one of them solved (exact McNemar p), per task and over
     /// all.
     Compare(super::bench_policy::CompareArgs),
+    /// The Table C analogue from results files of `bench success --steps N [--no-drs] --out`:
+    /// success (95 % Wilson interval) and median inference latency per arm and Euler steps, as a
+    /// table and a PNG plot.
+    Grid(super::bench_policy::GridArgs),
     /// Expert success, keyframes per episode and episodes per minute (no cameras) of tasks over
     /// seeded episodes.
     Experts(ExpertsBenchArgs),
@@ -192,6 +196,7 @@ pub fn run(cmd: BenchCommand) -> anyhow::Result<()> {
         BenchCommand::Heldout(args) => super::bench_policy::heldout_cmd(args),
         BenchCommand::Success(args) => super::bench_policy::success_cmd(args),
         BenchCommand::Compare(args) => super::bench_policy::compare_cmd(args),
+        BenchCommand::Grid(args) => super::bench_policy::grid_cmd(args),
         BenchCommand::Experts(args) => experts(args),
         BenchCommand::Shards(args) => shards(args),
         BenchCommand::Realtime(args) => super::bench_realtime::realtime(args),

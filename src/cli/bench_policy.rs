@@ -16,6 +16,7 @@ use flowram::policy::training::trainer::Trainer;
 use flowram::rollout::collection::demonstration;
 use flowram::rollout::evaluation::{Errors, SuccessOptions, SuccessRecord, TaskSuccess, heldout_errors, success_rates};
 use flowram::rollout::learned::DEFAULT_CAMERAS;
+use flowram::rollout::steps_grid::{plot_steps_grid, steps_grid};
 use flowram::sim::Visuals;
 use flowram::stats::{mcnemar_exact_p, median, wilson_interval};
 use flowram::tasks;
@@ -411,6 +412,58 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
     let (reports, baseline_reports) = (a.table(), b.table());
     let comparison = paired_comparison(&reports, &baseline_reports);
     print_comparison(&args.baseline, &reports, &baseline_reports, &comparison, args.json)
+}
+
+#[derive(Debug, Args)]
+pub struct GridArgs {
+    /// Results files of `bench success --out` (whole or merged), one per cell: the same tasks,
+    /// seeds, keyframe limit, cameras and samples, differing in checkpoint, --steps and --no-drs.
+    #[arg(required = true)]
+    results: Vec<PathBuf>,
+    /// Draw the grid to this PNG: success and latency against Euler steps, one line per arm.
+    #[arg(long)]
+    plot: Option<PathBuf>,
+    #[arg(long)]
+    json: bool,
+}
+
+/// `flowram bench grid`: success and latency against Euler steps and DRS (Table C).
+pub fn grid_cmd(args: GridArgs) -> anyhow::Result<()> {
+    let mut records = Vec::with_capacity(args.results.len());
+    for path in &args.results {
+        let record = SuccessRecord::read(path)?.ok_or_else(|| {
+            anyhow::anyhow!("{}: no such results file (write one with `bench success --out`)", path.display())
+        })?;
+        records.push((path.clone(), record));
+    }
+    let cells = steps_grid(&records)?;
+    if let Some(plot) = &args.plot {
+        plot_steps_grid(&cells, plot, 1200, 450)?;
+    }
+    if args.json {
+        return super::print_json(&cells);
+    }
+    let tasks: Vec<&str> = cells[0].tasks.iter().map(|t| t.task.as_str()).collect();
+    println!("{} episodes per cell ({}):", cells[0].episodes, tasks.join(", "));
+    for c in &cells {
+        let per_task: Vec<String> = c.tasks.iter().map(|t| format!("{}/{}", t.successes, t.episodes)).collect();
+        println!(
+            "  {} | {:>2} steps: {}/{} ({:.0} %, 95 % CI {:.0}-{:.0} %) [{}], inference {:.0} ms (median)",
+            c.arm,
+            c.steps,
+            c.successes,
+            c.episodes,
+            100.0 * c.success_rate,
+            100.0 * c.success_ci95[0],
+            100.0 * c.success_ci95[1],
+            per_task.join(" "),
+            c.inference_ms_median
+        );
+    }
+    if let Some(plot) = &args.plot {
+        println!("plot: {}", plot.display());
+    }
+    Ok(())
 }
 
 /// One task's (or all tasks', `task = "all"`) paired comparison of two checkpoints.

@@ -11,6 +11,8 @@
 //! - [`collection`]: expert demonstrations collected into datasets;
 //! - [`evaluation`]: closed-loop success rates on held-out seeds, and held-out keyframe errors
 //!   against trivial baselines;
+//! - [`steps_grid`]: those success rates and latencies against Euler steps and DRS (the Table C
+//!   analogue), tabulated from results files and plotted;
 //! - [`faults`]: fault streams injected into the real stack, counting limit violations,
 //!   non-finite torques and panics (`flowram bench faults`);
 //! - [`shard`]: splitting collection and evaluation over processes and machines (which seeds a
@@ -23,6 +25,7 @@ pub mod learned;
 pub mod realtime;
 pub mod shard;
 pub mod stack;
+pub mod steps_grid;
 
 use crate::control::backend::BackendError;
 use crate::control::ik::IkError;
@@ -90,6 +93,12 @@ pub enum RolloutError {
         dir.display()
     )]
     OtherRun { dir: std::path::PathBuf, found: String, asked: String },
+    /// Results files that do not form one grid of comparable cells (`bench grid`).
+    #[error("cannot tabulate the grid: {problem}")]
+    Grid { problem: String },
+    /// A figure that cannot be drawn or written.
+    #[error("cannot draw {}: {problem}", path.display())]
+    Plot { path: std::path::PathBuf, problem: String },
     /// Shard outputs that cannot be merged.
     #[error("cannot merge: {problem}")]
     Merge { problem: String },

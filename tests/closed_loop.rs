@@ -81,7 +81,7 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
     let approaches: Vec<usize> =
         (0..plan.len()).filter(|&k| k + 1 < plan.len() && plan[k][2] - plan[k + 1][2] >= 0.04).collect();
     assert_eq!(approaches, vec![0, 2], "above each cap, then the press");
-    let always = |target| Perturbation { probability: 1.0, sigma_m: 0.03, target };
+    let always = |target| Perturbation { probability: 1.0, sigma_m: 0.03, target, grasp_probability: 0.0 };
     let run = |world: &mut _, target| {
         run_episode(task.as_ref(), world, 20, 5, Actor::PerturbedExpert(always(target)), None).unwrap()
     };
@@ -116,16 +116,53 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
         assert_eq!(approach.actions[k + i + 1], plan[k]);
     }
     // never: the plain expert
-    let never = Perturbation { probability: 0.0, sigma_m: 0.03, target: RecoveryTarget::Next };
+    let never = Perturbation { probability: 0.0, sigma_m: 0.03, target: RecoveryTarget::Next, grasp_probability: 0.0 };
     let plain = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(never), None).unwrap();
     assert_eq!(plain.actions, clean.actions);
     // out of range: a clear error, before anything runs
-    for (probability, sigma_m) in [(1.5, 0.03), (0.5, f64::NAN)] {
-        let bad = Perturbation { probability, sigma_m, target: RecoveryTarget::Next };
+    for (probability, sigma_m, grasp_probability) in [(1.5, 0.03, 0.0), (0.5, f64::NAN, 0.0), (0.5, 0.03, -0.1)] {
+        let bad = Perturbation { probability, sigma_m, target: RecoveryTarget::Next, grasp_probability };
         let err =
             run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(bad), None).unwrap_err().to_string();
         assert!(err.contains("expected"), "{err}");
     }
+}
+
+#[test]
+fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() {
+    let task = tasks::by_name("stack_blocks").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    // variation 0: two blocks, so two grasps (the second keyframe of each block's six)
+    let clean = run_episode(task.as_ref(), &mut world, 0, 7, Actor::Expert, None).unwrap();
+    assert!(clean.success);
+    let plan = &clean.actions;
+    let grasps: Vec<usize> = (1..plan.len())
+        .filter(|&k| plan[k - 1][2] - plan[k][2] >= 0.04 && plan[k - 1][7] == 1.0 && plan[k][7] == 0.0)
+        .collect();
+    assert_eq!(grasps, vec![1, 7], "down and close, at each block");
+    let misses = Perturbation { probability: 0.0, sigma_m: 0.03, target: RecoveryTarget::Next, grasp_probability: 1.0 };
+    let run = |world: &mut _| run_episode(task.as_ref(), world, 0, 7, Actor::PerturbedExpert(misses), None).unwrap();
+    let missed = run(&mut world);
+    assert!(missed.success, "problems: {:?}", missed.problems);
+    assert!(missed.problems.is_empty(), "every keyframe reached, the missed grasps too: {:?}", missed.problems);
+    assert_eq!(missed.keyframes, clean.keyframes + 2 * grasps.len());
+    assert_eq!(missed.observations.len(), missed.actions.len());
+    for (i, &k) in grasps.iter().enumerate() {
+        let j = k + 2 * i;
+        assert_eq!(missed.actions[j], plan[k], "from above the block: the grasp");
+        assert_eq!(missed.actions[j + 1], plan[k - 1], "from the missed grasp: re-open above the block");
+        assert_eq!(missed.actions[j + 2], plan[k], "then the grasp again");
+        let seen = missed.observations[j + 1].proprio;
+        assert_eq!(seen[7], 0.0, "the gripper is closed at the missed grasp");
+        let beside = ((seen[0] - plan[k][0]).powi(2) + (seen[1] - plan[k][1]).powi(2)).sqrt();
+        assert!((0.04..0.06).contains(&beside), "the missed grasp is {beside} m beside the grasp");
+        assert!((seen[2] - plan[k][2]).abs() < 0.01, "at the grasp's height: {} vs {}", seen[2], plan[k][2]);
+    }
+    // the same misses again (drawn from the episode seed), and none without the option
+    assert_eq!(run(&mut world).actions, missed.actions);
+    let none = Perturbation { grasp_probability: 0.0, ..misses };
+    let plain = run_episode(task.as_ref(), &mut world, 0, 7, Actor::PerturbedExpert(none), None).unwrap();
+    assert_eq!(plain.actions, clean.actions);
 }
 
 #[test]

@@ -216,6 +216,12 @@ pub struct CollectArgs {
     /// or the approach keyframe itself (`approach`, measured harmful: experiments arm R).
     #[arg(long, default_value = "next", value_parser = ["next", "approach"], requires = "perturb_sigma")]
     perturb_target: String,
+    /// The chance that a grasp keyframe (closing the gripper after an approach) is first
+    /// executed 4.5-5.5 cm beside its pose, closing on nothing; the observation there is saved
+    /// with the approach keyframe as its action (re-open above), then the grasp is tried again
+    /// (with --perturb-sigma; README, "Recovery samples").
+    #[arg(long, default_value_t = 0.0, requires = "perturb_sigma")]
+    perturb_grasp_probability: f64,
     #[command(flatten)]
     shard: super::ShardArgs,
     #[arg(long)]
@@ -237,6 +243,7 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
             sigma_m,
             // clap accepts only the names
             target: RecoveryTarget::named(&args.perturb_target).unwrap_or_default(),
+            grasp_probability: args.perturb_grasp_probability,
         }),
     };
     let owned = options.shard.items(args.episodes).count();

@@ -129,10 +129,11 @@ impl CollectionManifest {
     fn request(&self) -> String {
         let perturbation = match self.perturbation {
             Some(p) => format!(
-                " --perturb-sigma {} --perturb-probability {} --perturb-target {}",
+                " --perturb-sigma {} --perturb-probability {} --perturb-target {} --perturb-grasp-probability {}",
                 p.sigma_m,
                 p.probability,
-                p.target.name()
+                p.target.name(),
+                p.grasp_probability
             ),
             None => String::new(),
         };

@@ -78,6 +78,16 @@ pub struct Perturbation {
     /// it existed: `approach`, what they did).
     #[serde(default)]
     pub target: RecoveryTarget,
+    /// Chance that a *grasp* keyframe (one that closes the gripper right after an approach) is
+    /// first executed missed, in [0, 1] (absent in manifests written before it existed: 0).
+    /// The missed grasp closes the fingers on nothing, [`Perturbation::GRASP_MISS_M`] beside
+    /// the intended pose across the fingers' closing direction; the observation there (the
+    /// gripper closed and empty) joins the episode with the approach keyframe as its action
+    /// (re-open above the object), the approach is executed, and the grasp is then tried again
+    /// as planned. A policy that has seen no demonstration re-open never recovers from a
+    /// missed grasp (`docs/experiments.md`, why stack_blocks fails).
+    #[serde(default)]
+    pub grasp_probability: f64,
 }
 
 /// The action recorded for an observation taken on a detour.
@@ -118,11 +128,23 @@ impl Perturbation {
     const CLIP: f64 = 2.5;
     /// Mixed into the episode seed for the offsets' RNG (independent of the reset's draws).
     const SEED_SALT: u64 = 0x5eed_da27;
+    /// How far beside the intended grasp pose a missed grasp closes (m, along the hand's x axis,
+    /// across the fingers' closing direction: the fingers close next to a 4 cm block).
+    pub const GRASP_MISS_M: std::ops::RangeInclusive<f64> = 0.045..=0.055;
+    /// Mixed into the episode seed for the missed grasps' RNG (its own stream, so adding them
+    /// leaves the approach detours of a collection as they were).
+    const GRASP_SEED_SALT: u64 = 0x9a5b_0f75;
 
     /// Checks the ranges; the error says what is expected.
     pub fn validate(&self) -> Result<(), String> {
         if !(0.0..=1.0).contains(&self.probability) {
             return Err(format!("the perturbation probability is {}; expected a value in [0, 1]", self.probability));
+        }
+        if !(0.0..=1.0).contains(&self.grasp_probability) {
+            return Err(format!(
+                "the missed-grasp probability is {}; expected a value in [0, 1]",
+                self.grasp_probability
+            ));
         }
         if !(self.sigma_m > 0.0 && self.sigma_m <= 0.1) {
             return Err(format!(
@@ -136,6 +158,35 @@ impl Perturbation {
     /// Whether keyframe `k` of `plan` is an approach keyframe.
     pub fn is_approach(plan: &[Keyframe], k: usize) -> bool {
         matches!((plan.get(k), plan.get(k + 1)), (Some(a), Some(b)) if a.position[2] - b.position[2] >= Self::APPROACH_DROP_M)
+    }
+
+    /// Whether keyframe `k` of `plan` is a grasp keyframe: it closes the gripper right after
+    /// an open approach keyframe.
+    pub fn is_grasp(plan: &[Keyframe], k: usize) -> bool {
+        k >= 1 && Self::is_approach(plan, k - 1) && plan[k - 1].gripper_open && !plan[k].gripper_open
+    }
+
+    /// The missed version of grasp keyframe `k` of `plan`, if it gets one (draws from `rng` for
+    /// every grasp keyframe): the same pose moved by [`Self::GRASP_MISS_M`] along the hand's x
+    /// axis (either way), in the horizontal plane.
+    fn missed_grasp(&self, plan: &[Keyframe], k: usize, rng: &mut StdRng) -> Option<Keyframe> {
+        if !Self::is_grasp(plan, k) {
+            return None;
+        }
+        let go = rng.random::<f64>() < self.grasp_probability;
+        let side = if rng.random::<bool>() { 1.0 } else { -1.0 };
+        let distance = rng.random_range(Self::GRASP_MISS_M);
+        let [w, x, y, z] = plan[k].quat_wxyz;
+        let hand_x =
+            nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z)) * nalgebra::Vector3::x();
+        let across = nalgebra::Vector2::new(hand_x.x, hand_x.y);
+        let norm = across.norm();
+        (go && norm > 1e-6).then(|| {
+            let mut missed = plan[k];
+            missed.position[0] += side * distance * across.x / norm;
+            missed.position[1] += side * distance * across.y / norm;
+            missed
+        })
     }
 
     /// The detour before keyframe `k` of `plan`, if it gets one (draws from `rng` for every
@@ -265,6 +316,7 @@ pub fn run_episode(
         Actor::PerturbedExpert(p) => Some((p, StdRng::seed_from_u64(seed ^ Perturbation::SEED_SALT))),
         _ => None,
     };
+    let mut grasp_rng = StdRng::seed_from_u64(seed ^ Perturbation::GRASP_SEED_SALT);
     let mut gripper_open = true;
     for k in 0..budget {
         let mut observation = observe(world, observer.as_deref_mut(), gripper_open)?;
@@ -274,6 +326,25 @@ pub fn run_episode(
             (_, None) => break,
         };
         let mut action = keyframe;
+        let missed = match &perturbation {
+            Some((p, _)) if p.grasp_probability > 0.0 => p.missed_grasp(&planned, k, &mut grasp_rng),
+            _ => None,
+        };
+        if let Some(missed) = missed {
+            // The grasp is this observation's action; the missed grasp is what runs. From the
+            // closed, empty gripper the action is the approach keyframe (re-open above); then
+            // the grasp is tried again from the approach as planned.
+            let approach = planned[k - 1]; // a grasp follows an approach (`is_grasp`)
+            result.observations.push(observation);
+            result.actions.push(proprio_of(&keyframe));
+            execute(task, world, &mut runner, &base, k, &missed, &mut state, &mut result)?;
+            result.keyframes += 1;
+            result.observations.push(observe(world, observer.as_deref_mut(), missed.gripper_open)?);
+            result.actions.push(proprio_of(&approach));
+            execute(task, world, &mut runner, &base, k, &approach, &mut state, &mut result)?;
+            result.keyframes += 1;
+            observation = observe(world, observer.as_deref_mut(), approach.gripper_open)?;
+        }
         if let Some((p, detour)) = perturbation.as_mut().and_then(|(p, rng)| Some((*p, p.detour(&planned, k, rng)?))) {
             // The intended keyframe is this observation's action, the detour is what runs.
             result.observations.push(observation);

@@ -244,7 +244,10 @@ fn run_and_collect_write_what_they_report() {
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let manifest: serde_json::Value =
         serde_json::from_slice(&std::fs::read(perturbed.join("manifest.json")).unwrap()).unwrap();
-    assert_eq!(manifest["perturbation"], serde_json::json!({"probability": 1.0, "sigma_m": 0.03, "target": "next"}));
+    assert_eq!(
+        manifest["perturbation"],
+        serde_json::json!({"probability": 1.0, "sigma_m": 0.03, "target": "next", "grasp_probability": 0.0})
+    );
     let loaded = flowram::data::load_dataset(&perturbed).unwrap();
     assert_eq!(loaded.episodes[0].proprio.len() / 8, 5, "slide_block's 4 keyframes and one detour");
     let out = collect(&["--perturb-sigma", "0.03", "--perturb-probability", "1", "--perturb-target", "approach"]);
@@ -255,6 +258,10 @@ fn run_and_collect_write_what_they_report() {
     assert_eq!(out.status.code(), Some(1));
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("at most 0.1 m") && !err.contains("panicked"), "{err}");
+    let out = collect(&["--perturb-sigma", "0.03", "--perturb-grasp-probability", "2"]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("missed-grasp probability is 2") && !err.contains("panicked"), "{err}");
 
     let out = common::flowram().args(["run", "--task", "juggle"]).output().unwrap();
     assert_eq!(out.status.code(), Some(1));

@@ -392,7 +392,10 @@ fn bench_grid_tabulates_and_plots_recorded_evaluations() {
         })
         .collect();
     assert_eq!(summary, [("five-tasks", 8, 107, 250), ("five-tasks-fw", 8, 115, 250)]);
-    assert!(std::fs::metadata(&plot).unwrap().len() > 1000, "the plot is written");
+    let (info, pixels) = decode_png(&plot);
+    assert_eq!((info.width, info.height), (1200, 450));
+    let coloured = pixels.chunks(info.color_type.samples()).filter(|p| (p[0] as i32 - p[2] as i32).abs() > 60).count();
+    assert!(coloured > 100, "the arms are drawn: {coloured} coloured pixels");
 
     // The same cell twice, and a missing file: refused, saying why.
     let out = common::flowram().args(["bench", "grid", j2, j2]).output().unwrap();

@@ -29,6 +29,9 @@ pub struct KeyframeReport {
     pub error: Option<String>,
     /// What the gripper did (open, grasped, empty, blocked) if it was actuated.
     pub gripper: Option<String>,
+    /// The same, as a state (for callers that act on it).
+    #[serde(skip)]
+    pub grasp: Option<GraspState>,
     /// Wall-clock time IK took for this keyframe (ms).
     pub ik_ms: f64,
 }
@@ -43,6 +46,7 @@ impl KeyframeReport {
             time_s: 0.0,
             error: Some(error),
             gripper: None,
+            grasp: None,
             ik_ms,
         }
     }
@@ -213,6 +217,7 @@ impl Runner {
                 time_s: t1 - t0,
                 error: outcome.problem(c),
                 gripper: outcome.gripper.map(|g| describe(&g)),
+                grasp: outcome.gripper,
                 ik_ms,
             });
         }

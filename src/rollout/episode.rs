@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use super::RolloutError;
 use super::stack::build_runner;
 use crate::control::backend::{Cycle, RobotBackend};
+use crate::control::gripper::GraspState;
 use crate::control::keyframe::Keyframe;
 use crate::control::osc_config::OscConfig;
 use crate::control::runner::Runner;
@@ -85,7 +86,9 @@ pub struct Perturbation {
     /// gripper closed and empty) joins the episode with the approach keyframe as its action
     /// (re-open above the object), the approach is executed, and the grasp is then tried again
     /// as planned. A policy that has seen no demonstration re-open never recovers from a
-    /// missed grasp (`docs/experiments.md`, why stack_blocks fails).
+    /// missed grasp (`docs/experiments.md`, why stack_blocks fails). A missed grasp that is not
+    /// reached or does not close on nothing (the fingers met a long object's end or a
+    /// neighbour) makes the episode unsuccessful: a collection tries another seed.
     #[serde(default)]
     pub grasp_probability: f64,
 }
@@ -168,7 +171,8 @@ impl Perturbation {
 
     /// The missed version of grasp keyframe `k` of `plan`, if it gets one (draws from `rng` for
     /// every grasp keyframe): the same pose moved by [`Self::GRASP_MISS_M`] along the hand's x
-    /// axis (either way), in the horizontal plane.
+    /// axis (either way), in the horizontal plane. Grasps whose x axis is far from horizontal
+    /// (a horizontal hand) get none.
     fn missed_grasp(&self, plan: &[Keyframe], k: usize, rng: &mut StdRng) -> Option<Keyframe> {
         if !Self::is_grasp(plan, k) {
             return None;
@@ -181,7 +185,7 @@ impl Perturbation {
             nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z)) * nalgebra::Vector3::x();
         let across = nalgebra::Vector2::new(hand_x.x, hand_x.y);
         let norm = across.norm();
-        (go && norm > 1e-6).then(|| {
+        (go && norm > 0.7).then(|| {
             let mut missed = plan[k];
             missed.position[0] += side * distance * across.x / norm;
             missed.position[1] += side * distance * across.y / norm;
@@ -317,6 +321,9 @@ pub fn run_episode(
         _ => None,
     };
     let mut grasp_rng = StdRng::seed_from_u64(seed ^ Perturbation::GRASP_SEED_SALT);
+    // A missed grasp that touched something: the episode is no demonstration (unsuccessful, so
+    // a collection tries another seed).
+    let mut spoiled = false;
     let mut gripper_open = true;
     for k in 0..budget {
         let mut observation = observe(world, observer.as_deref_mut(), gripper_open)?;
@@ -330,6 +337,7 @@ pub fn run_episode(
             Some((p, _)) if p.grasp_probability > 0.0 => p.missed_grasp(&planned, k, &mut grasp_rng),
             _ => None,
         };
+        let grasp_missed = missed.is_some();
         if let Some(missed) = missed {
             // The grasp is this observation's action; the missed grasp is what runs. From the
             // closed, empty gripper the action is the approach keyframe (re-open above); then
@@ -337,7 +345,19 @@ pub fn run_episode(
             let approach = planned[k - 1]; // a grasp follows an approach (`is_grasp`)
             result.observations.push(observation);
             result.actions.push(proprio_of(&keyframe));
-            execute(task, world, &mut runner, &base, k, &missed, &mut state, &mut result)?;
+            let (reached, grasp) = execute(task, world, &mut runner, &base, k, &missed, &mut state, &mut result)?;
+            if !reached || grasp != Some(GraspState::Empty) {
+                // Beside a long object (a handle's end, a neighbouring block) the fingers can
+                // touch or hold it: not the closed, empty gripper this sample is meant to show.
+                spoiled = true;
+                result.problems.push((
+                    k,
+                    format!(
+                        "the missed grasp was {} with the gripper {grasp:?}, not closed on nothing: not a demonstration",
+                        if reached { "reached" } else { "not reached" }
+                    ),
+                ));
+            }
             result.keyframes += 1;
             result.observations.push(observe(world, observer.as_deref_mut(), missed.gripper_open)?);
             result.actions.push(proprio_of(&approach));
@@ -345,7 +365,11 @@ pub fn run_episode(
             result.keyframes += 1;
             observation = observe(world, observer.as_deref_mut(), approach.gripper_open)?;
         }
-        if let Some((p, detour)) = perturbation.as_mut().and_then(|(p, rng)| Some((*p, p.detour(&planned, k, rng)?))) {
+        // Drawn at every approach keyframe whatever happens, so that the detours of a collection
+        // do not depend on the missed grasps; no experts' grasp is also an approach, but if one
+        // were, its missed grasp would stand for the detour.
+        let detour = perturbation.as_mut().and_then(|(p, rng)| Some((*p, p.detour(&planned, k, rng)?)));
+        if let Some((p, detour)) = detour.filter(|_| !grasp_missed) {
             // The intended keyframe is this observation's action, the detour is what runs.
             result.observations.push(observation);
             result.actions.push(proprio_of(&keyframe));
@@ -370,13 +394,14 @@ pub fn run_episode(
         hold(world, &mut runner, f64::from(seconds))?;
         task.observe(world, &mut state);
     }
-    result.success = task.success(world, &state);
+    result.success = !spoiled && task.success(world, &state);
     result.sim_seconds = world.time() - t0;
     result.episode.state = state;
     Ok(result)
 }
 
 /// Executes keyframe `k` (world frame) and records how it went (the caller records the action).
+/// Returns whether it was reached and what the gripper did.
 #[allow(clippy::too_many_arguments)]
 fn execute(
     task: &dyn Task,
@@ -387,18 +412,20 @@ fn execute(
     keyframe: &Keyframe,
     state: &mut TaskState,
     result: &mut EpisodeResult,
-) -> Result<(), RolloutError> {
+) -> Result<(bool, Option<GraspState>), RolloutError> {
     let report = runner.run(world, &[in_base(base, k, keyframe)?])?;
+    let mut outcome = (false, None);
     for r in &report.keyframes {
         if r.reached {
             result.reached += 1;
         } else {
             result.problems.push((k, r.error.clone().unwrap_or_default()));
         }
+        outcome = (r.reached, r.grasp);
     }
     task.observe(world, state);
     result.reached_poses.push(tcp_proprio(world, keyframe.gripper_open));
-    Ok(())
+    Ok(outcome)
 }
 
 /// The expert's keyframes for `variation` at `seed`, planned from the settled start of that

@@ -55,9 +55,12 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
     };
     let mut cells: Vec<GridCell> = Vec::with_capacity(records.len());
     for (path, record) in records {
-        if !record.shard.is_whole() || !record.complete() {
+        if !record.shard.is_whole()
+            || !record.complete()
+            || record.outcomes.len() != record.tasks.len() * record.episodes
+        {
             return Err(grid_error(format!(
-                "{} is an incomplete or single-shard results file; finish it (re-run the same `bench success`) or \
+                "{} is an incomplete or single-shard results file, or one with extra outcomes; finish it (re-run the same `bench success`) or \
                  `flowram merge` its shards first",
                 path.display()
             )));
@@ -127,8 +130,8 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
     for (i, (arm, digest)) in arms.iter().enumerate() {
         if let Some((_, other)) = arms[..i].iter().find(|(a, d)| a == arm && d != digest) {
             return Err(grid_error(format!(
-                "two different checkpoints (weights {digest} and {other}) are both named {arm:?}: give them folders \
-                 of different names"
+                "two different checkpoints (weights {digest} and {other}) are both named {arm:?} (their run's or \
+                 folder's name): copy one run or checkpoint folder to another name and evaluate it there"
             )));
         }
     }
@@ -168,6 +171,9 @@ pub fn plot_steps_grid(cells: &[GridCell], path: &Path, width: u32, height: u32)
     if cells.is_empty() {
         return Err(plot_error("no cells to plot".into()));
     }
+    if path.extension().is_none_or(|e| !e.eq_ignore_ascii_case("png")) {
+        return Err(plot_error("the plot is a PNG: give a path ending in .png".into()));
+    }
     if width < 256 || height < 128 {
         return Err(plot_error(format!("{width}x{height} px is too small for two panels (at least 256x128)")));
     }
@@ -197,6 +203,7 @@ fn draw(cells: &[GridCell], path: &Path, width: u32, height: u32, text: bool) ->
     let x_min = cells.iter().map(|c| log2(c.steps)).fold(f64::INFINITY, f64::min);
     let x_max = cells.iter().map(|c| log2(c.steps)).fold(f64::NEG_INFINITY, f64::max);
     let x_range = (x_min - 0.5)..(x_max + 0.5);
+    // Ticks at the powers of two (steps such as 3 or 12 are drawn, not labelled).
     let ticks = (x_max - x_min).round() as usize + 1;
     let x_label = |v: &f64| {
         if (v - v.round()).abs() < 1e-6 { format!("{}", 2f64.powf(v.round()).round() as i64) } else { String::new() }
@@ -433,5 +440,7 @@ mod tests {
         assert_eq!(names, ["grid.png"], "no temporary files left");
         assert!(plot_steps_grid(&[], &path, 960, 400).is_err());
         assert!(plot_steps_grid(&cells, &path, 100, 100).is_err());
+        let not_png = plot_steps_grid(&cells, &dir.path().join("grid"), 960, 400).unwrap_err().to_string();
+        assert!(not_png.contains(".png"), "{not_png}");
     }
 }

@@ -11,7 +11,7 @@ fn close_at_home(world: &mut World) -> String {
     let home = world.arm_state().tcp_in_base;
     let report = runner.run(world, &[Keyframe::at(&home, false)]).unwrap();
     assert_eq!(report.limit_violations, 0);
-    report.keyframes[0].gripper.clone().expect("the gripper was actuated")
+    report.keyframes[0].gripper.expect("the gripper was actuated").to_string()
 }
 
 #[test]

@@ -142,7 +142,7 @@ pub fn run(args: TrackArgs) -> anyhow::Result<()> {
                 k.pos_err_mm,
                 k.rot_err_deg,
                 k.time_s,
-                k.gripper.as_deref().map(|g| format!(", gripper {g}")).unwrap_or_default()
+                k.gripper.map(|g| format!(", gripper {g}")).unwrap_or_default()
             ),
         }
     }

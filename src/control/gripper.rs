@@ -33,6 +33,19 @@ impl GraspState {
     }
 }
 
+/// What the gripper did, in words: `open`, `grasped (30.0 mm)`, `closed on nothing`, ...
+impl std::fmt::Display for GraspState {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            GraspState::Moving => write!(f, "still moving (timed out)"),
+            GraspState::Open => write!(f, "open"),
+            GraspState::Grasped { width } => write!(f, "grasped ({:.1} mm)", width * 1e3),
+            GraspState::Empty => write!(f, "closed on nothing"),
+            GraspState::Blocked { width } => write!(f, "blocked at {:.1} mm", width * 1e3),
+        }
+    }
+}
+
 /// Tracks the command and decides the grasp state from the finger motion.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Gripper {

@@ -27,11 +27,10 @@ pub struct KeyframeReport {
     /// From the start of the motion to the end of the gripper action.
     pub time_s: f64,
     pub error: Option<String>,
-    /// What the gripper did (open, grasped, empty, blocked) if it was actuated.
-    pub gripper: Option<String>,
-    /// The same, as a state (for callers that act on it).
-    #[serde(skip)]
-    pub grasp: Option<GraspState>,
+    /// What the gripper did (open, grasped, empty, blocked) if it was actuated; in JSON its
+    /// description (`"closed on nothing"`, `"grasped (30.0 mm)"`).
+    #[serde(serialize_with = "describe")]
+    pub gripper: Option<GraspState>,
     /// Wall-clock time IK took for this keyframe (ms).
     pub ik_ms: f64,
 }
@@ -46,7 +45,6 @@ impl KeyframeReport {
             time_s: 0.0,
             error: Some(error),
             gripper: None,
-            grasp: None,
             ik_ms,
         }
     }
@@ -216,8 +214,7 @@ impl Runner {
                 rot_err_deg: er.to_degrees(),
                 time_s: t1 - t0,
                 error: outcome.problem(c),
-                gripper: outcome.gripper.map(|g| describe(&g)),
-                grasp: outcome.gripper,
+                gripper: outcome.gripper,
                 ik_ms,
             });
         }
@@ -274,12 +271,9 @@ impl Runner {
     }
 }
 
-fn describe(g: &GraspState) -> String {
+fn describe<S: serde::Serializer>(g: &Option<GraspState>, serializer: S) -> Result<S::Ok, S::Error> {
     match g {
-        GraspState::Moving => "still moving (timed out)".into(),
-        GraspState::Open => "open".into(),
-        GraspState::Grasped { width } => format!("grasped ({:.1} mm)", width * 1e3),
-        GraspState::Empty => "closed on nothing".into(),
-        GraspState::Blocked { width } => format!("blocked at {:.1} mm", width * 1e3),
+        Some(g) => serializer.collect_str(g),
+        None => serializer.serialize_none(),
     }
 }

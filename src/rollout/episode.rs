@@ -421,7 +421,7 @@ fn execute(
         } else {
             result.problems.push((k, r.error.clone().unwrap_or_default()));
         }
-        outcome = (r.reached, r.grasp);
+        outcome = (r.reached, r.gripper);
     }
     task.observe(world, state);
     result.reached_poses.push(tcp_proprio(world, keyframe.gripper_open));

@@ -38,6 +38,7 @@ fi
 # One `collect` per core (COLLECT_SHARDS, default nproc), each on its own shard of the seeds
 # (episode k on shard k mod count), merged into one dataset: the same episodes as one process.
 shards="${COLLECT_SHARDS:-$(nproc)}"
+mkdir -p runs/data
 collect_sharded() { # TASK N DIR [collect options...]
   local task=$1 n=$2 dir=$3 pids=() parts=() i
   shift 3

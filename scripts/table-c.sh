@@ -3,7 +3,7 @@
 #   scripts/table-c.sh OUT_DIR CHECKPOINT [CHECKPOINT...]
 # Each CHECKPOINT (a run folder runs/NAME or a checkpoint folder; e.g. a run trained with DRS,
 # such as the shipped recipe's, and one trained with `radius_schedule.kind = "global"` at the
-# same compute) is evaluated by `bench success` on the five tasks at each of STEPS (default
+# same compute) is evaluated by `bench success` on TASKS (default the five) at each of STEPS (default
 # "2 4 8 16") Euler steps, EPISODES (default 20) held-out seeds per task from 1000, in SHARDS
 # (default: one per core) processes side by side, merged into OUT_DIR/<name>-<steps>.json (name:
 # the run's, as `bench grid` names arms). INFERENCE_ABLATION=1 also samples each checkpoint with
@@ -24,7 +24,7 @@ shift
 scripts/setup.sh
 cargo build --release --locked
 bin=target/release/flowram
-tasks=open_drawer,push_buttons,slide_block,close_jar,stack_blocks
+tasks="${TASKS:-open_drawer,push_buttons,slide_block,close_jar,stack_blocks}"
 episodes="${EPISODES:-20}"
 shards="${SHARDS:-$(nproc)}"
 mkdir -p "$out/shards"

@@ -3,9 +3,9 @@
 #   scripts/table-c.sh OUT_DIR CHECKPOINT [CHECKPOINT...]
 # Each CHECKPOINT (a run folder runs/NAME or a checkpoint folder; e.g. a run trained with DRS,
 # such as the shipped recipe's, and one trained with `radius_schedule.kind = "global"` at the
-# same compute) is evaluated by `bench success` on TASKS (comma-separated, default the five) at each of STEPS (default
-# "2 4 8 16") Euler steps, EPISODES (default 20) held-out seeds per task from 1000, in SHARDS
-# (default: one per core) processes side by side, merged into OUT_DIR/<name>-<steps>.json (name:
+# same compute) is evaluated by `bench success` on TASKS (comma-separated, default the five)
+# at each of STEPS (default "2 4 8 16") Euler steps, EPISODES (default 20) held-out seeds per
+# task from 1000, in SHARDS (default: one per core) processes side by side, merged into OUT_DIR/<name>-<steps>.json (name:
 # the run's, as `bench grid` names arms). INFERENCE_ABLATION=1 also samples each checkpoint with
 # global geometric tokens (`--no-drs`, no retraining): OUT_DIR/<name>-<steps>-global.json.
 # `bench grid` then prints the table and draws OUT_DIR/table_c.png (PLOT overrides the path).

@@ -137,8 +137,8 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
     let recorded = Observation::episode_action(&episode, args.keyframe);
     let steps = args.steps.unwrap_or(policy.config().flow.sampling_steps);
     let started = Instant::now();
-    let keyframes = policy
-        .predict(&observation, &SamplingOptions { steps, samples: args.samples, drs: !args.no_drs, seed: args.seed })?;
+    let options = SamplingOptions { steps, samples: args.samples, drs: !args.no_drs, seed: args.seed };
+    let keyframes = policy.predict(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();
     let predictions: Vec<Prediction> = keyframes
         .into_iter()
@@ -157,7 +157,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         keyframe: args.keyframe,
         instruction: observation.instruction.clone(),
         steps,
-        drs: !args.no_drs,
+        drs: options.samples_with_drs(policy.config().radius_schedule),
         recorded,
         predictions,
         seconds,

@@ -36,6 +36,20 @@ pub struct SamplingOptions {
     pub seed: u64,
 }
 
+impl SamplingOptions {
+    /// The radius schedule these options sample with, given the checkpoint's `configured` one:
+    /// that schedule, or global tokens at every step when `drs` is off.
+    pub fn schedule(&self, configured: RadiusSchedule) -> RadiusSchedule {
+        if self.drs { configured } else { RadiusSchedule::Global }
+    }
+
+    /// Whether sampling uses the Dynamic Radius Schedule: `drs` on and a checkpoint trained with
+    /// a dynamic schedule (one trained with `kind = "global"` samples with global tokens).
+    pub fn samples_with_drs(&self, configured: RadiusSchedule) -> bool {
+        matches!(self.schedule(configured), RadiusSchedule::Dynamic { .. })
+    }
+}
+
 /// Where the time of one `sample` call went (wall clock, milliseconds).
 #[derive(Debug, Clone, Copy, Default, PartialEq, serde::Serialize)]
 pub struct SampleProfile {
@@ -146,7 +160,7 @@ impl Policy {
         }
         let s = options.samples;
         let encoded = encoded.repeat(s)?;
-        let schedule = if options.drs { config.radius_schedule } else { RadiusSchedule::Global };
+        let schedule = options.schedule(config.radius_schedule);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
         let a0 = sample_source_noise(&mut rng, s, ACTION_DIMS, &device())?;
         let refs: Vec<(&PreparedObservation, Augmentation)> = vec![(prepared, Augmentation::NONE); s];
@@ -222,6 +236,20 @@ pub fn consensus(poses: &[KeyframePose]) -> Option<KeyframePose> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn drs_is_the_configured_dynamic_schedule_unless_switched_off() {
+        let dynamic = RadiusSchedule::default();
+        let on = SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0 };
+        let off = SamplingOptions { drs: false, ..on };
+        assert_eq!(on.schedule(dynamic), dynamic);
+        assert_eq!(off.schedule(dynamic), RadiusSchedule::Global);
+        assert!(on.samples_with_drs(dynamic));
+        assert!(!off.samples_with_drs(dynamic));
+        // A checkpoint trained with global tokens samples with them whatever the option says.
+        assert_eq!(on.schedule(RadiusSchedule::Global), RadiusSchedule::Global);
+        assert!(!on.samples_with_drs(RadiusSchedule::Global));
+    }
 
     fn at(x: f32, open: bool) -> KeyframePose {
         KeyframePose { position: [x, 0.0, 0.2], quat_wxyz: [1.0, 0.0, 0.0, 0.0], gripper_open: open }

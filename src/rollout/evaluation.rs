@@ -140,7 +140,10 @@ pub struct SuccessRecord {
     pub seed: u64,
     pub max_keyframes: usize,
     /// Sampling: Euler steps, keyframe samples per observation (their consensus executed; absent
-    /// in records from before there was a choice: 1) and DRS.
+    /// in records from before there was a choice: 1) and DRS (true when the samples used the
+    /// Dynamic Radius Schedule: `--no-drs` not given and the checkpoint trained with a dynamic
+    /// schedule; records written before 2026-12-04 session 14 say true for a checkpoint trained
+    /// with `kind = "global"`).
     pub steps: usize,
     #[serde(default = "one_sample")]
     pub samples: usize,
@@ -176,7 +179,7 @@ impl SuccessRecord {
             max_keyframes: options.max_keyframes,
             steps: actor.options.steps,
             samples: actor.options.samples,
-            drs: actor.options.drs,
+            drs: actor.options.samples_with_drs(actor.policy.config().radius_schedule),
             cameras: options.cameras.clone(),
             shard: options.shard,
             outcomes: Vec::new(),

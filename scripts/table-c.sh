@@ -7,7 +7,9 @@
 # at each of STEPS (default "2 4 8 16") Euler steps, EPISODES (default 20) held-out seeds per
 # task from 1000, in SHARDS (default: one per core) processes side by side, merged into OUT_DIR/<name>-<steps>.json (name:
 # the run's, as `bench grid` names arms). INFERENCE_ABLATION=1 also samples each checkpoint with
-# global geometric tokens (`--no-drs`, no retraining): OUT_DIR/<name>-<steps>-global.json.
+# global geometric tokens (`--no-drs`, no retraining): OUT_DIR/<name>-<steps>-global.json (not
+# for a checkpoint trained with `kind = "global"`: both cells would be global, and `bench grid`
+# refuses two records of the same cell).
 # `bench grid` then prints the table and draws OUT_DIR/table_c.png (PLOT overrides the path).
 # The latency column is the closed loop's (all consensus samples) with SHARDS evaluations
 # sharing the cores; SHARDS=1 measures it unloaded, at twice the wall clock on 2 cores.

@@ -254,7 +254,7 @@ fn draw(cells: &[GridCell], path: &Path, width: u32, height: u32, text: bool) ->
     if text {
         chart
             .configure_series_labels()
-            .position(SeriesLabelPosition::LowerRight)
+            .position(SeriesLabelPosition::UpperRight)
             .background_style(WHITE.mix(0.8))
             .border_style(BLACK)
             .draw()

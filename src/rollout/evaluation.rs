@@ -143,7 +143,7 @@ pub struct SuccessRecord {
     /// in records from before there was a choice: 1) and DRS (true when the samples used the
     /// Dynamic Radius Schedule: `--no-drs` not given and the checkpoint trained with a dynamic
     /// schedule; records written before 2026-12-04 session 14 say true for a checkpoint trained
-    /// with `kind = "global"`).
+    /// with `kind = "global"` unless `--no-drs` was given).
     pub steps: usize,
     #[serde(default = "one_sample")]
     pub samples: usize,

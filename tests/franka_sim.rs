@@ -2,7 +2,8 @@
 //! (PyPI franka-sim 1.1.7, a MuJoCo server speaking the Franka network protocol as an FR3;
 //! installed by scripts/setup.sh into .deps/franka-sim) over 127.0.0.1, with the server's
 //! communication-constraint and motion-limit enforcement on. The server runs our installed
-//! Panda MJCF (FR3_MJCF), so nothing is downloaded.
+//! Panda MJCF with rotor inertia added (FR3_MJCF; see `server_arm_mjcf`), so nothing is
+//! downloaded.
 //!
 //! Needs `--features franka` (`.ci/run` runs it).
 #![cfg(feature = "franka")]
@@ -21,6 +22,29 @@ use flowram::robot::{JointVector, Kinematics};
 /// The server's initial arm configuration (franka_sim/mujoco_franka_sim.py, ARM_INITIAL_Q).
 const SERVER_START_Q: [f64; 7] = [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785];
 
+/// The arm model the server simulates: our installed Panda MJCF with the motors' reflected
+/// rotor inertia (`armature`, 0.1 kg m^2 per joint, MuJoCo Menagerie's Panda and FR3 value),
+/// written to `dir` with absolute mesh paths. The dm-robotics-panda model has none, and
+/// franka-sim's idle hold (an explicit PD, 4500 / 450 on joint 1) is then unstable on the
+/// light mode where joints 1 and 3 turn against each other (their axes align at the start
+/// pose): the arm shook at up to 2.3 rad/s between sessions, and a session could start into a
+/// joint_velocity_violation reflex.
+fn server_arm_mjcf(deps: &Deps, dir: &Path) -> PathBuf {
+    let arm = deps.panda_arm_mjcf().unwrap();
+    let folder = arm.parent().unwrap().display().to_string();
+    let xml = std::fs::read_to_string(&arm).unwrap();
+    let compiler = r#"<compiler angle="radian" />"#;
+    assert!(xml.contains(compiler), "{} changed: no `{compiler}`", arm.display());
+    let joints = xml.matches(r#"<joint name="panda_joint"#).count();
+    assert_eq!(joints, 7, "{}: expected 7 arm joints", arm.display());
+    let xml = xml
+        .replace(compiler, &format!(r#"<compiler angle="radian" meshdir="{folder}" texturedir="{folder}" />"#))
+        .replace(r#"<joint name="panda_joint"#, r#"<joint armature="0.1" name="panda_joint"#);
+    let path = dir.join("panda_rotor_inertia.xml");
+    std::fs::write(&path, xml).unwrap();
+    path
+}
+
 /// franka-sim on a free port; SIGINT (its clean shutdown) and then SIGKILL when dropped.
 struct Server {
     child: Child,
@@ -37,7 +61,7 @@ impl Server {
         let log = dir.join("server.log");
         let child = Command::new(exe)
             .args(["--port", &port.to_string(), "--enforce-comm-constraints", "--enforce-motion-limits"])
-            .env("FR3_MJCF", deps.panda_arm_mjcf().unwrap())
+            .env("FR3_MJCF", server_arm_mjcf(&deps, dir))
             .env("FRANKA_HAND_MJCF", deps.panda_hand_mjcf().unwrap())
             .env("PYTHONUNBUFFERED", "1")
             .stdout(std::fs::File::create(&log).unwrap())
@@ -154,6 +178,10 @@ fn clean_run_reaches_keyframes_within_the_robots_limits(server: &Server, file: &
         assert!(k["pos_err_mm"].as_f64().unwrap() < 2.0, "keyframe {i}: {k}");
     }
     assert_eq!(report["limit_violations"], 0, "{report}");
+    // motions are planned at half the joint velocity limits (controllers/osc.toml); more means
+    // the arm was moving before we commanded it (it shook at 89 % without rotor inertia)
+    let velocity = report["max_velocity_ratio"].as_f64().unwrap();
+    assert!(velocity < 0.6, "a joint reached {velocity} of its velocity limit");
     let franka = &report["franka"];
     // the torque rate on the server's side: consecutive torques it received (its echo is
     // float32: 1e-4 Nm of rounding at these torques)

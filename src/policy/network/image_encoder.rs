@@ -34,7 +34,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::kernels::conv_ops::{AddUpsampled2, Im2Col, LayerNormSilu, Window};
+use crate::policy::kernels::conv_ops::{AddBias, AddUpsampled2, Im2Col, LayerNormSilu, Window};
 
 /// Normalisation inside the residual blocks.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -172,7 +172,7 @@ impl ConvNhwc {
         let (cout, cin, k, _) = self.weight.dims4()?;
         // [Cout, Cin, ky, kx] -> [(ky, kx, Cin), Cout] to match the column order.
         let w_mat = self.weight.permute((2, 3, 1, 0))?.reshape((k * k * cin, cout))?;
-        let y = cols.matmul(&w_mat)?.broadcast_add(&self.bias)?;
+        let y = cols.matmul(&w_mat)?.apply_op2(&self.bias, AddBias)?;
         Ok(y.reshape((n, ho, wo, cout))?)
     }
 }

@@ -278,16 +278,24 @@ pub(crate) struct AddBias;
 /// order on any machine).
 const BIAS_ROWS_PER_TASK: usize = 256;
 
+/// One pass: each output element is written once, from `x` and `bias` (`x.len()` is a multiple
+/// of `bias.len()`, checked by the caller).
 fn add_bias_typed<T: NormScalar>(x: &[T], bias: &[T]) -> Vec<T> {
     let c = bias.len();
-    let mut out = x.to_vec();
-    out.par_chunks_mut(c * BIAS_ROWS_PER_TASK).for_each(|rows| {
-        for row in rows.chunks_exact_mut(c) {
-            for (o, &b) in row.iter_mut().zip(bias) {
-                *o += b;
+    let mut out = Vec::with_capacity(x.len());
+    out.spare_capacity_mut()[..x.len()]
+        .par_chunks_mut(c * BIAS_ROWS_PER_TASK)
+        .zip(x.par_chunks(c * BIAS_ROWS_PER_TASK))
+        .for_each(|(out, x)| {
+            for (out_row, x_row) in out.chunks_exact_mut(c).zip(x.chunks_exact(c)) {
+                for ((o, &v), &b) in out_row.iter_mut().zip(x_row).zip(bias) {
+                    o.write(v + b);
+                }
             }
-        }
-    });
+        });
+    // SAFETY: the chunks above cover the first x.len() elements (whole rows of c), and every
+    // one of them was written.
+    unsafe { out.set_len(x.len()) };
     out
 }
 
@@ -327,8 +335,8 @@ impl candle_core::CustomOp2 for AddBias {
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         let (_, c) = l1.shape().dims2()?;
-        if l2.shape().dims() != [c] {
-            candle_core::bail!("add-bias: x {:?} needs a bias [{c}], got {:?}", l1.shape(), l2.shape())
+        if c == 0 || l2.shape().dims() != [c] {
+            candle_core::bail!("add-bias: x {:?} (C > 0) needs a bias [C], got {:?}", l1.shape(), l2.shape())
         }
         let out = match (s1, s2) {
             (CpuStorage::F32(x), CpuStorage::F32(b)) => CpuStorage::F32(add_bias_typed(

@@ -32,6 +32,7 @@ const SERVER_START_Q: [f64; 7] = [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785];
 fn server_arm_mjcf(deps: &Deps, dir: &Path) -> PathBuf {
     let arm = deps.panda_arm_mjcf().unwrap();
     let folder = arm.parent().unwrap().display().to_string();
+    assert!(!folder.contains(['"', '&', '<']), "{folder}: the MJCF attribute below would need escaping");
     let xml = std::fs::read_to_string(&arm).unwrap();
     let compiler = r#"<compiler angle="radian" />"#;
     assert!(xml.contains(compiler), "{} changed: no `{compiler}`", arm.display());
@@ -213,7 +214,7 @@ fn a_stalled_client_is_aborted_recovered_and_the_robot_runs_again(server: &Serve
     let sessions = |log: &str| log.matches("Setting control mode to TORQUE").count();
     let before = sessions(&server.log());
     let (ok, _, stderr) = run_with_timeout(track(server, file), Duration::from_secs(120), |pid| {
-        // well into the first motion: 1 s after the torque session started
+        // mid-run: 1 s after the torque session started (a run is about 3.3 s of robot time)
         let deadline = Instant::now() + Duration::from_secs(60);
         while sessions(&server.log()) == before {
             assert!(Instant::now() < deadline, "the client never started a torque session");

@@ -282,6 +282,8 @@ const BIAS_ROWS_PER_TASK: usize = 256;
 /// of `bias.len()`, checked by the caller).
 fn add_bias_typed<T: NormScalar>(x: &[T], bias: &[T]) -> Vec<T> {
     let c = bias.len();
+    // whole rows only: the unsafe set_len below relies on it
+    assert!(c > 0 && x.len().is_multiple_of(c), "add-bias: {} values are not rows of {c}", x.len());
     let mut out = Vec::with_capacity(x.len());
     out.spare_capacity_mut()[..x.len()]
         .par_chunks_mut(c * BIAS_ROWS_PER_TASK)
@@ -707,28 +709,54 @@ mod tests {
     #[test]
     fn fused_bias_add_and_its_gradient_match_the_broadcast_add() {
         let dev = Device::Cpu;
-        // more rows than one parallel block, and a partial last block
-        let (m, c) = (3 * BIAS_ROWS_PER_TASK + 17, 5);
-        let x = Var::from_tensor(&Tensor::randn(0f64, 1.0, (m, c), &dev).unwrap()).unwrap();
-        let b = Var::from_tensor(&Tensor::randn(0f64, 1.0, c, &dev).unwrap()).unwrap();
-        let w = Tensor::randn(0f64, 1.0, (m, c), &dev).unwrap();
-        let fused = x.as_tensor().apply_op2(b.as_tensor(), AddBias).unwrap();
-        let composed = x.as_tensor().broadcast_add(b.as_tensor()).unwrap();
-        let diff = (&fused - &composed).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f64>().unwrap();
-        assert_eq!(diff, 0.0);
-        let g_fused = (fused * &w).unwrap().sum_all().unwrap().backward().unwrap();
-        let g_composed = (composed * &w).unwrap().sum_all().unwrap().backward().unwrap();
-        for var in [&x, &b] {
-            let (a, e) = (g_fused.get(var).unwrap(), g_composed.get(var).unwrap());
-            let diff = (a - e).unwrap().abs().unwrap().max_all().unwrap().to_scalar::<f64>().unwrap();
-            assert!(diff < 1e-9, "gradient differs by {diff}");
+        let c = 5;
+        // more rows than one parallel block with a partial last block; one row; no rows
+        for (dtype, rows, tolerance) in [
+            (DType::F64, 3 * BIAS_ROWS_PER_TASK + 17, 1e-9),
+            (DType::F32, 3 * BIAS_ROWS_PER_TASK + 17, 1e-3),
+            (DType::F32, 1, 1e-6),
+            (DType::F32, 0, 0.0), // forward only
+        ] {
+            let randn = |shape: &[usize]| Tensor::randn(0f64, 1.0, shape, &dev).unwrap().to_dtype(dtype).unwrap();
+            let x = Var::from_tensor(&randn(&[rows, c])).unwrap();
+            let b = Var::from_tensor(&randn(&[c])).unwrap();
+            let w = randn(&[rows, c]);
+            let max_abs = |t: Tensor| {
+                t.abs()
+                    .unwrap()
+                    .flatten_all()
+                    .unwrap()
+                    .to_dtype(DType::F64)
+                    .unwrap()
+                    .to_vec1::<f64>()
+                    .unwrap()
+                    .into_iter()
+                    .fold(0.0, f64::max)
+            };
+            let fused = x.as_tensor().apply_op2(b.as_tensor(), AddBias).unwrap();
+            let composed = x.as_tensor().broadcast_add(b.as_tensor()).unwrap();
+            assert_eq!(fused.dims(), [rows, c]);
+            assert_eq!(max_abs((&fused - &composed).unwrap()), 0.0, "{dtype:?}, {rows} rows: forward");
+            if rows == 0 {
+                continue; // candle returns no gradients for these empty tensors
+            }
+            let g_fused = (fused * &w).unwrap().sum_all().unwrap().backward().unwrap();
+            let g_composed = (composed * &w).unwrap().sum_all().unwrap().backward().unwrap();
+            for var in [&x, &b] {
+                let (a, e) = (g_fused.get(var).unwrap(), g_composed.get(var).unwrap());
+                let diff = max_abs((a - e).unwrap());
+                assert!(diff <= tolerance, "{dtype:?}, {rows} rows: gradient differs by {diff}");
+            }
+            // the bias gradient is the column sum of the upstream gradient
+            let expected = w.sum(0).unwrap();
+            let diff = max_abs((g_fused.get(&b).unwrap() - expected).unwrap());
+            assert!(diff <= tolerance, "{dtype:?}, {rows} rows: bias gradient off by {diff}");
         }
-        // the bias gradient is the column sum of the upstream gradient
-        let expected = w.sum(0).unwrap();
-        let diff = (g_fused.get(&b).unwrap() - expected).unwrap().abs().unwrap().max_all().unwrap();
-        assert!(diff.to_scalar::<f64>().unwrap() < 1e-9);
-        // a bias of the wrong length is an error, not a panic
-        let short = Tensor::zeros(c - 1, DType::F64, &dev).unwrap();
-        assert!(x.as_tensor().apply_op2(&short, AddBias).is_err());
+        // a bias of the wrong length, or a non-contiguous x, is an error, not a panic
+        let x = Tensor::randn(0f64, 1.0, (4, 5), &dev).unwrap();
+        let short = Tensor::zeros(4, DType::F64, &dev).unwrap();
+        assert!(x.apply_op2(&short, AddBias).is_err());
+        let bias = Tensor::zeros(4, DType::F64, &dev).unwrap();
+        assert!(x.t().unwrap().apply_op2(&bias, AddBias).is_err());
     }
 }

@@ -11,15 +11,26 @@ use std::time::{Duration, Instant};
 use flowram::data::{load_dataset, read_index};
 use rand::{Rng, SeedableRng};
 
-/// Starts `cmd`, kills it with SIGKILL after `delay` unless it ended before; true if killed.
-fn kill_after(mut cmd: Command, delay: Duration) -> bool {
+/// Starts `cmd` and kills it with SIGKILL `jitter` after `ready()` first holds (polled every
+/// 5 ms), unless it ended before; true if killed. Kills keyed to the run's own progress land
+/// mid-run on any machine, however fast or loaded; the jitter spreads them over the work that
+/// follows (an episode being simulated or written, a step, a checkpoint being saved).
+fn kill_when(mut cmd: Command, ready: impl Fn() -> bool, jitter: Duration) -> bool {
     let mut child = cmd.stdout(std::process::Stdio::null()).stderr(std::process::Stdio::null()).spawn().unwrap();
-    let deadline = Instant::now() + delay;
-    while Instant::now() < deadline {
+    let give_up = Instant::now() + Duration::from_secs(600);
+    let mut deadline: Option<Instant> = None;
+    loop {
         if child.try_wait().unwrap().is_some() {
             return false;
         }
-        std::thread::sleep(Duration::from_millis(10));
+        let now = Instant::now();
+        assert!(now < give_up, "the run made no progress in 600 s");
+        match deadline {
+            Some(at) if now >= at => break,
+            None if ready() => deadline = Some(now + jitter),
+            _ => {}
+        }
+        std::thread::sleep(Duration::from_millis(5));
     }
     child.kill().unwrap(); // SIGKILL
     child.wait().unwrap();
@@ -32,6 +43,11 @@ fn collect(out: &Path, episodes: usize) -> Command {
     c.args(["--cameras", "front", "--size", "48", "--out"]).arg(out);
     c.env_remove("SLURM_ARRAY_TASK_ID").env_remove("JOB_COMPLETION_INDEX");
     c
+}
+
+/// How many episodes the index lists now (0 while it is absent); cheap enough to poll.
+fn listed_count(dir: &Path) -> usize {
+    read_index(dir).map_or(0, |index| index.episodes.len())
 }
 
 /// The seeds a dataset lists, checking that every listed episode loads.
@@ -51,21 +67,22 @@ fn collect_killed_at_random_points_keeps_its_dataset_and_resumes() {
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
     let mut before: Vec<u64> = Vec::new();
     let mut landed = 0;
-    // Four kills at random points; on a loaded machine an episode can take longer than the
-    // delays, so while none has landed after an episode, up to four more with longer delays.
-    for attempt in 0..8u64 {
-        if attempt >= 4 && landed > 0 {
-            break;
-        }
-        let stretch = 1 + attempt.saturating_sub(3);
-        let delay = Duration::from_millis(rng.random_range(700..4000) * stretch);
-        let killed = kill_after(collect(&out, 6), delay);
+    // The first kill comes at a random time from the start (it may land while the simulator and
+    // renderer start up); each later one once the run has listed one more episode than it
+    // started with, plus 0-600 ms, so it lands while the next episode is simulated or written.
+    for attempt in 0..5u64 {
+        let (listed, jitter) = (before.len(), Duration::from_millis(rng.random_range(0..600)));
+        let killed = if attempt == 0 {
+            kill_when(collect(&out, 6), || true, Duration::from_millis(rng.random_range(50..1500)))
+        } else {
+            kill_when(collect(&out, 6), || listed_count(&out) > listed, jitter)
+        };
         let seeds = listed_seeds(&out);
         assert!(seeds.starts_with(&before), "a kill lost listed episodes: {before:?} then {seeds:?}");
         landed += usize::from(killed && !seeds.is_empty() && seeds.len() < 6);
         before = seeds;
     }
-    assert!(landed > 0, "no kill landed mid-collection (after an episode, before the end): retime the kills");
+    assert!(landed >= 2, "fewer than two kills landed mid-collection (after an episode, before the end): {landed}");
     let finished = collect(&out, 6).output().unwrap();
     assert!(finished.status.success(), "{}", String::from_utf8_lossy(&finished.stderr));
     let seeds = listed_seeds(&out);
@@ -120,8 +137,10 @@ fn train_killed_at_random_points_resumes_losing_at_most_one_checkpoint_interval(
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
     let mut kills = 0;
     for _ in 0..6 {
-        let delay = Duration::from_millis(rng.random_range(800..4000));
-        if !kill_after(train(), delay) {
+        // once the run has logged 1-60 steps past where it started, plus 0-300 ms
+        let (start, ahead) = (last_logged_step(&run), rng.random_range(1..60u64));
+        let jitter = Duration::from_millis(rng.random_range(0..300));
+        if !kill_when(train(), || last_logged_step(&run) >= start + ahead, jitter) {
             break;
         }
         kills += 1;

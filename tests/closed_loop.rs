@@ -7,7 +7,7 @@ mod common;
 use flowram::control::keyframe::Keyframe;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
-use flowram::policy::scene::observation::Observation;
+use flowram::policy::scene::observation::{Observation, is_detour};
 use flowram::rollout::RolloutError;
 use flowram::rollout::episode::{
     Actor, KeyframeObservation, KeyframePolicy, Observer, Perturbation, RecoveryTarget, run_episode,
@@ -106,6 +106,12 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
     let mut undetoured = next.actions.clone();
     undetoured.dedup();
     assert_eq!(undetoured, clean.actions);
+    // the detours are recognised from the actions alone (the keyframe index skips them)
+    let flat: Vec<f32> = next.actions.iter().flatten().copied().collect();
+    let detours: Vec<usize> = (0..next.actions.len()).filter(|&j| is_detour(&flat, j)).collect();
+    assert_eq!(detours, approaches.iter().enumerate().map(|(i, &k)| k + i + 1).collect::<Vec<_>>());
+    let clean_flat: Vec<f32> = clean.actions.iter().flatten().copied().collect();
+    assert!((0..clean.actions.len()).all(|j| !is_detour(&clean_flat, j)), "no detour in the clean episode");
     // the approach target: the same detours (drawn from the episode seed), the approach as action
     let approach = run(&mut world, RecoveryTarget::Approach);
     assert!(approach.success);
@@ -158,6 +164,9 @@ fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() 
         assert!((0.04..0.06).contains(&beside), "the missed grasp is {beside} m beside the grasp");
         assert!((seen[2] - plan[k][2]).abs() < 0.01, "at the grasp's height: {} vs {}", seen[2], plan[k][2]);
     }
+    // a missed grasp's samples are keyframes (closed loop the policy makes them), not detours
+    let flat: Vec<f32> = missed.actions.iter().flatten().copied().collect();
+    assert!((0..missed.actions.len()).all(|j| !is_detour(&flat, j)));
     // the same misses again (drawn from the episode seed), and none without the option
     assert_eq!(run(&mut world).actions, missed.actions);
     let none = Perturbation { grasp_probability: 0.0, ..misses };
@@ -182,10 +191,11 @@ fn rendered_frames_become_the_same_observation_as_the_dataset_path() {
     let episode = result.to_dataset_episode().unwrap();
     for k in [0, result.observations.len() - 1] {
         let from_dataset = Observation::from_episode(&episode, k).unwrap();
-        let live = policy_observation(&result.episode.instruction, &result.observations[k]).unwrap();
+        let live = policy_observation(&result.episode.instruction, k, &result.observations[k]).unwrap();
         assert_eq!(live.size, from_dataset.size);
         assert_eq!(live.proprio, from_dataset.proprio);
         assert_eq!(live.instruction, from_dataset.instruction);
+        assert_eq!(live.keyframe, from_dataset.keyframe);
         assert_eq!(live.cameras.len(), 2);
         for (a, b) in live.cameras.iter().zip(&from_dataset.cameras) {
             assert_eq!(a.rgb, b.rgb);
@@ -195,7 +205,7 @@ fn rendered_frames_become_the_same_observation_as_the_dataset_path() {
         }
     }
     let empty = KeyframeObservation { frames: Vec::new(), proprio: [0.0; 8] };
-    let err = policy_observation("open the top drawer", &empty).unwrap_err().to_string();
+    let err = policy_observation("open the top drawer", 0, &empty).unwrap_err().to_string();
     assert!(err.contains("camera"), "{err}");
 }
 

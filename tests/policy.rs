@@ -580,3 +580,56 @@ fn shipped_policy_configs_load_and_the_ten_task_box_holds_every_expert_keyframe(
         }
     }
 }
+
+#[test]
+fn the_keyframe_index_reaches_the_condition_only_when_configured() {
+    use candle_core::{DType, Device, Tensor};
+    use flowram::policy::inputs::{Augmentation, prefix_inputs};
+    use flowram::policy::network::model::FlowRam;
+    let episode = demonstration();
+    // a plain expert episode: observation k comes after k keyframes
+    for k in 0..episode.keyframes() {
+        assert_eq!(Observation::from_episode(episode, k).unwrap().keyframe, k);
+    }
+    let mut config = tiny_config();
+    config.observation.keyframe_index = true;
+    let mut text = text();
+    // the AdaLN condition the Mamba blocks are modulated by (their modulation starts at zero,
+    // adaLN-Zero, so a fresh model's output cannot show it)
+    let condition = |config: &PolicyConfig, text: &mut TextEncoder, keyframe: usize, table: Option<&Tensor>| {
+        let varmap = candle_nn::VarMap::new();
+        let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &Device::Cpu);
+        let model = FlowRam::new(config, vb).unwrap();
+        let vars = varmap.data().lock().unwrap().clone();
+        assert_eq!(vars.contains_key("keyframe_embedding"), config.observation.keyframe_index);
+        if let (Some(var), Some(table)) = (vars.get("keyframe_embedding"), table) {
+            var.set(table).unwrap();
+        }
+        let observation = Observation { keyframe, ..Observation::from_episode(episode, 1).unwrap() };
+        let prepared = flowram::policy::inputs::prepare(&observation, config, text).unwrap();
+        let observations = [(&prepared, Augmentation::NONE)];
+        let prefix = prefix_inputs(config, &observations).unwrap();
+        let encoded = model.encode(&prefix).unwrap();
+        encoded.condition.to_vec2::<f32>().unwrap()[0].clone()
+    };
+    // zero-initialised: a new model starts as the one without the index
+    assert_eq!(condition(&config, &mut text, 0, None), condition(&config, &mut text, 4, None));
+    let rows = flowram::policy::config::MAX_KEYFRAME_INDEX + 1;
+    let c = config.model.channels;
+    let table = Tensor::randn(0.0f32, 1.0, (rows, c), &Device::Cpu).unwrap().to_dtype(DType::F32).unwrap();
+    let (first, fifth) =
+        (condition(&config, &mut text, 0, Some(&table)), condition(&config, &mut text, 4, Some(&table)));
+    // the condition moves by exactly the difference of the table's rows 4 and 0
+    let rows_of = table.to_vec2::<f32>().unwrap();
+    for i in 0..c {
+        let (moved, expected) = (fifth[i] - first[i], rows_of[4][i] - rows_of[0][i]);
+        assert!((moved - expected).abs() < 1e-4, "channel {i}: moved {moved}, the table says {expected}");
+    }
+    // past the table's end: the last row, as the last index
+    let (last, beyond) =
+        (condition(&config, &mut text, rows - 1, Some(&table)), condition(&config, &mut text, 400, Some(&table)));
+    assert_eq!(last, beyond);
+    // off (the paper): no table, and the index changes nothing
+    config.observation.keyframe_index = false;
+    assert_eq!(condition(&config, &mut text, 0, None), condition(&config, &mut text, 4, None));
+}

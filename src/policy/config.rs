@@ -46,7 +46,21 @@ pub struct ObservationConfig {
     /// observation, in its order.
     #[serde(default)]
     pub cameras: Vec<String>,
+    /// Condition on the keyframe index: how many keyframes of the episode were executed before
+    /// this observation (0 at the start; clipped to [`MAX_KEYFRAME_INDEX`]), as a learned
+    /// embedding added to every Mamba block's AdaLN condition. PerAct, RVT and RVT-2 give the
+    /// policy the episode's timestep the same way; it tells the phases of a sequence apart that
+    /// look alike (the second button of "push the red button, then the maroon button", the
+    /// second block of a stack). Recovery detours do not count (see
+    /// [`Observation::from_episode`](crate::policy::scene::observation::Observation::from_episode)).
+    /// Off (the paper): the observation alone.
+    #[serde(default)]
+    pub keyframe_index: bool,
 }
+
+/// Keyframe indices at or past this share the last embedding row (`observation.keyframe_index`):
+/// RLBench's evaluation allows 25 keyframes.
+pub const MAX_KEYFRAME_INDEX: usize = 31;
 
 /// The network.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]

@@ -4,7 +4,7 @@
 //! Augmentation (training) shifts a sample's whole scene and scales its brightness.
 use candle_core::{DType, Tensor};
 
-use crate::policy::config::PolicyConfig;
+use crate::policy::config::{MAX_KEYFRAME_INDEX, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::network::model::{PrefixInputs, SuffixInputs};
 use crate::policy::network::text_encoder::{TEXT_HIDDEN_SIZE, TextEncoder};
@@ -25,6 +25,8 @@ pub struct PreparedObservation {
     pub language: Tensor,
     /// The instruction's sentence embedding (384, L2-normalised mean of the token features).
     pub instruction: Vec<f32>,
+    /// Keyframes executed before the observation, clipped to [`MAX_KEYFRAME_INDEX`].
+    pub keyframe: u32,
 }
 
 /// Per-sample augmentation: a shift of the scene (normalised workspace units, added to points,
@@ -84,6 +86,7 @@ pub fn prepare(
         proprio,
         language,
         instruction: features.embedding.clone(),
+        keyframe: observation.keyframe.min(MAX_KEYFRAME_INDEX) as u32,
     })
 }
 
@@ -105,6 +108,7 @@ fn select_cameras(observation: &Observation, names: &[String]) -> Result<Observa
         cameras,
         proprio: observation.proprio,
         instruction: observation.instruction.clone(),
+        keyframe: observation.keyframe,
     })
 }
 
@@ -128,6 +132,7 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
     let mut proprio = Vec::with_capacity(b * 10);
     let mut language = Vec::with_capacity(b);
     let mut instruction = Vec::with_capacity(b * TEXT_HIDDEN_SIZE);
+    let mut keyframe = Vec::with_capacity(b);
     for (i, (s, aug)) in samples.iter().enumerate() {
         if s.cameras != cams || s.images.len() != first.images.len() {
             return Err(PolicyError::Invalid("every sample of a batch needs the same cameras and image size".into()));
@@ -148,6 +153,7 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
         proprio.extend(p);
         language.push(s.language.clone());
         instruction.extend_from_slice(&s.instruction);
+        keyframe.push(s.keyframe);
     }
     let device = first.language.device();
     Ok(PrefixInputs {
@@ -157,6 +163,7 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
         semantic_xyz: Tensor::from_vec(xyz, (b, n1, 3), device)?,
         proprio: Tensor::from_vec(proprio, (b, 10), device)?,
         instruction: Tensor::from_vec(instruction, (b, TEXT_HIDDEN_SIZE), device)?,
+        keyframe: Tensor::from_vec(keyframe, b, device)?,
     })
 }
 

@@ -35,7 +35,7 @@ impl KeyframePolicy for FlowRamActor {
         k: usize,
         observation: &KeyframeObservation,
     ) -> Result<Keyframe, RolloutError> {
-        let observation = policy_observation(instruction, observation)?;
+        let observation = policy_observation(instruction, k, observation)?;
         let options = SamplingOptions { seed: self.options.seed + k as u64, ..self.options };
         let start = Instant::now();
         let pose = self.policy.predict_keyframe(&observation, &options)?;
@@ -49,8 +49,12 @@ impl KeyframePolicy for FlowRamActor {
 }
 
 /// The policy's view of a keyframe observation (square frames of one size, in the observer's
-/// camera order).
-pub fn policy_observation(instruction: &str, observation: &KeyframeObservation) -> Result<Observation, RolloutError> {
+/// camera order) taken after `keyframe` keyframes of the episode.
+pub fn policy_observation(
+    instruction: &str,
+    keyframe: usize,
+    observation: &KeyframeObservation,
+) -> Result<Observation, RolloutError> {
     let first = observation.frames.first().ok_or(RolloutError::NoCameras)?;
     let size = first.intrinsics.width;
     let mut cameras = Vec::with_capacity(observation.frames.len());
@@ -73,5 +77,5 @@ pub fn policy_observation(instruction: &str, observation: &KeyframeObservation) 
             camera_to_world: std::array::from_fn(|r| std::array::from_fn(|c| e[(r, c)] as f32)),
         });
     }
-    Ok(Observation { size, cameras, proprio: observation.proprio, instruction: instruction.to_string() })
+    Ok(Observation { size, cameras, proprio: observation.proprio, instruction: instruction.to_string(), keyframe })
 }

@@ -41,7 +41,7 @@
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
-use crate::policy::config::{InstructionPooling, PolicyConfig};
+use crate::policy::config::{InstructionPooling, MAX_KEYFRAME_INDEX, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::network::encoding::{positional_encoding, time_embedding};
 use crate::policy::network::image_encoder::{ImageEncoder, ImageEncoderConfig};
@@ -89,6 +89,9 @@ pub struct PrefixInputs {
     pub proprio: Tensor,
     /// [B, 384] the instruction's sentence embedding (for `model.instruction_adaln`).
     pub instruction: Tensor,
+    /// u32 [B] keyframes executed before each observation (for `observation.keyframe_index`),
+    /// at most [`MAX_KEYFRAME_INDEX`].
+    pub keyframe: Tensor,
 }
 
 /// Batched inputs of one flow step (suffix).
@@ -286,6 +289,9 @@ pub struct FlowRam {
     proprio_mlp: Mlp,
     /// The instruction's part of the AdaLN condition (`model.instruction_adaln`).
     instruction_mlp: Option<Mlp>,
+    /// [MAX_KEYFRAME_INDEX + 1, C]: the keyframe index's part of the AdaLN condition
+    /// (`observation.keyframe_index`), zero-initialised.
+    keyframe_embedding: Option<Tensor>,
     /// Scores of the instruction's tokens for `model.instruction_pooling = "attention"`.
     instruction_scores: Option<Linear>,
     /// `model.instruction_pointer`.
@@ -329,6 +335,15 @@ impl FlowRam {
             action_in: candle_nn::linear(ACTION_DIMS, c, vb.pp("action_in"))?,
             token_types: vb.get_with_hints((4, c), "token_types", candle_nn::Init::Randn { mean: 0.0, stdev: 0.02 })?,
             proprio_mlp: Mlp::new(PROPRIO_DIMS, c, c, vb.pp("proprio_mlp"))?,
+            keyframe_embedding: if config.observation.keyframe_index {
+                Some(vb.get_with_hints(
+                    (MAX_KEYFRAME_INDEX + 1, c),
+                    "keyframe_embedding",
+                    candle_nn::Init::Const(0.0),
+                )?)
+            } else {
+                None
+            },
             instruction_mlp: if config.model.instruction_adaln {
                 Some(Mlp::new(TEXT_HIDDEN_SIZE, c, c, vb.pp("instruction_mlp"))?)
             } else {
@@ -481,6 +496,9 @@ impl FlowRam {
         let mut condition = self.proprio_mlp.forward(&inputs.proprio)?;
         if let Some(mlp) = &self.instruction_mlp {
             condition = condition.add(&mlp.forward(&instruction)?)?;
+        }
+        if let Some(table) = &self.keyframe_embedding {
+            condition = condition.add(&table.index_select(&inputs.keyframe, 0)?)?;
         }
         Ok(Prefix { tokens, condition, memory, goal })
     }

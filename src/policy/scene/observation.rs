@@ -43,6 +43,9 @@ pub struct Observation {
     /// TCP position (world, m), quaternion w, x, y, z, gripper open (1/0).
     pub proprio: [f32; 8],
     pub instruction: String,
+    /// Keyframes of the episode executed before this observation (0 at the start); read by
+    /// policies with `observation.keyframe_index`.
+    pub keyframe: usize,
 }
 
 /// A keyframe: what the policy predicts and what the control stack executes.
@@ -96,7 +99,10 @@ pub fn proprio_features(proprio: &[f32; 8], workspace: &WorkspaceBounds) -> Resu
 }
 
 impl Observation {
-    /// Keyframe `k` of a dataset episode (all its cameras, in the episode's order).
+    /// Keyframe `k` of a dataset episode (all its cameras, in the episode's order). Its
+    /// [`Observation::keyframe`] counts the samples before `k` that are not recovery detours
+    /// ([`is_detour`]): a detour's observation stands in for the next one's state, off target,
+    /// and closed loop the policy never makes it.
     pub fn from_episode(episode: &Episode, k: usize) -> Result<Self> {
         let keyframes = episode.keyframes();
         if k >= keyframes {
@@ -126,13 +132,27 @@ impl Observation {
             });
         }
         let proprio: [f32; 8] = std::array::from_fn(|i| episode.proprio[k * 8 + i]);
-        Ok(Self { size: h, cameras, proprio, instruction: episode.instruction.clone() })
+        let keyframe = (0..k).filter(|&i| !is_detour(&episode.action, i)).count();
+        Ok(Self { size: h, cameras, proprio, instruction: episode.instruction.clone(), keyframe })
     }
 
     /// The recorded expert action at keyframe `k` of an episode.
     pub fn episode_action(episode: &Episode, k: usize) -> KeyframePose {
         KeyframePose::from_proprio(&std::array::from_fn(|i| episode.action[k * 8 + i]))
     }
+}
+
+/// Whether sample `k` of an episode is a recovery detour's observation: the perturbed expert
+/// (`collect --perturb-sigma`, recovery target `next`) records the observation at the detour
+/// with the action of the approach keyframe's successor, which is also the action of the sample
+/// after it (the observation at the approach), so a detour is a sample whose action equals its
+/// successor's. Expert keyframes never repeat (a missed grasp's samples act grasp, approach,
+/// grasp). Datasets collected with `--perturb-target approach` (arm R) are not recognised: their
+/// detours count as keyframes.
+/// `actions` is an episode's `action` tensor, [K, 8] row-major.
+pub fn is_detour(actions: &[f32], k: usize) -> bool {
+    let next = k + 1;
+    (next + 1) * 8 <= actions.len() && actions[k * 8..next * 8] == actions[next * 8..(next + 1) * 8]
 }
 
 /// The lifted feature pixels of an observation that lie in the workspace.

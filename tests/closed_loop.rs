@@ -7,7 +7,7 @@ mod common;
 use flowram::control::keyframe::Keyframe;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
-use flowram::policy::scene::observation::{Observation, is_detour};
+use flowram::policy::scene::observation::{Observation, is_detour, keyframe_index};
 use flowram::rollout::RolloutError;
 use flowram::rollout::episode::{
     Actor, KeyframeObservation, KeyframePolicy, Observer, Perturbation, RecoveryTarget, run_episode,
@@ -110,6 +110,10 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
     let flat: Vec<f32> = next.actions.iter().flatten().copied().collect();
     let detours: Vec<usize> = (0..next.actions.len()).filter(|&j| is_detour(&flat, j)).collect();
     assert_eq!(detours, approaches.iter().enumerate().map(|(i, &k)| k + i + 1).collect::<Vec<_>>());
+    // a detour's sample stands in for the state after its approach: the same index as the
+    // clean sample at the approach (above cap 1, detour, at cap 1, pressed, detour, at cap 2, ...)
+    let indices: Vec<usize> = (0..next.actions.len()).map(|j| keyframe_index(&flat, j)).collect();
+    assert_eq!(indices, [0, 1, 1, 2, 3, 3, 4]);
     let clean_flat: Vec<f32> = clean.actions.iter().flatten().copied().collect();
     assert!((0..clean.actions.len()).all(|j| !is_detour(&clean_flat, j)), "no detour in the clean episode");
     // the approach target: the same detours (drawn from the episode seed), the approach as action
@@ -167,6 +171,7 @@ fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() 
     // a missed grasp's samples are keyframes (closed loop the policy makes them), not detours
     let flat: Vec<f32> = missed.actions.iter().flatten().copied().collect();
     assert!((0..missed.actions.len()).all(|j| !is_detour(&flat, j)));
+    assert!((0..missed.actions.len()).all(|j| keyframe_index(&flat, j) == j));
     // the same misses again (drawn from the episode seed), and none without the option
     assert_eq!(run(&mut world).actions, missed.actions);
     let none = Perturbation { grasp_probability: 0.0, ..misses };
@@ -253,4 +258,24 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     )
     .unwrap();
     assert_eq!(again.actions, result.actions);
+}
+
+#[test]
+fn no_expert_repeats_a_keyframe_so_a_repeat_marks_a_detour() {
+    use rand::SeedableRng;
+    // `is_detour` tells a recovery detour by an action equal to the next sample's: every
+    // task's expert plan must be free of consecutive repeats for that to hold
+    for task in tasks::all() {
+        let mut world = tasks::load_world(task.as_ref()).unwrap();
+        let count = task.variation_count();
+        for (seed, variation) in (0..6u64).zip([0, count / 3, count / 2, 2 * count / 3, count - 1, 1 % count]) {
+            world.reset_to("home").unwrap();
+            let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
+            let state = task.reset(&mut world, variation, &mut rng).unwrap();
+            let plan = task.expert(&world, &state).unwrap();
+            for pair in plan.windows(2) {
+                assert_ne!(pair[0], pair[1], "{} variation {variation} seed {seed} repeats a keyframe", task.name());
+            }
+        }
+    }
 }

@@ -24,7 +24,11 @@ fn kill_when(mut cmd: Command, ready: impl Fn() -> bool, jitter: Duration) -> bo
             return false;
         }
         let now = Instant::now();
-        assert!(now < give_up, "the run made no progress in 600 s");
+        if now >= give_up {
+            child.kill().unwrap();
+            child.wait().unwrap();
+            panic!("the run made no progress in 600 s");
+        }
         match deadline {
             Some(at) if now >= at => break,
             None if ready() => deadline = Some(now + jitter),
@@ -60,6 +64,9 @@ fn listed_seeds(dir: &Path) -> Vec<u64> {
     read_index(dir).unwrap().episodes.iter().map(|e| e.seed).collect()
 }
 
+/// Episodes of the killed collection.
+const EPISODES: usize = 8;
+
 #[test]
 fn collect_killed_at_random_points_keeps_its_dataset_and_resumes() {
     let dir = tempfile::tempdir().unwrap();
@@ -68,29 +75,47 @@ fn collect_killed_at_random_points_keeps_its_dataset_and_resumes() {
     let mut before: Vec<u64> = Vec::new();
     let mut landed = 0;
     // The first kill comes at a random time from the start (it may land while the simulator and
-    // renderer start up); each later one once the run has listed one more episode than it
-    // started with, plus 0-600 ms, so it lands while the next episode is simulated or written.
+    // renderer start up). The second comes as soon as the run lists its second new episode,
+    // and measures how long an episode takes (simulation, rendering, writing). Each later one
+    // comes a uniformly random fraction of that time after the run lists one more episode, so
+    // the kills fall anywhere in an episode's life, its writing included.
+    let mut interval: Option<Duration> = None;
     for attempt in 0..5u64 {
-        let (listed, jitter) = (before.len(), Duration::from_millis(rng.random_range(0..600)));
-        let killed = if attempt == 0 {
-            kill_when(collect(&out, 6), || true, Duration::from_millis(rng.random_range(50..1500)))
-        } else {
-            kill_when(collect(&out, 6), || listed_count(&out) > listed, jitter)
+        let listed = before.len();
+        let killed = match (attempt, interval) {
+            (0, _) => kill_when(collect(&out, EPISODES), || true, Duration::from_millis(rng.random_range(50..1500))),
+            (_, None) => {
+                let first_new = std::cell::Cell::new(None);
+                let ready = || {
+                    let n = listed_count(&out);
+                    if n > listed && first_new.get().is_none() {
+                        first_new.set(Some(Instant::now()));
+                    }
+                    n > listed + 1
+                };
+                let killed = kill_when(collect(&out, EPISODES), ready, Duration::ZERO);
+                interval = first_new.get().map(|t| t.elapsed());
+                killed
+            }
+            (_, Some(episode)) => {
+                let jitter = episode.mul_f64(rng.random_range(0.0..1.0));
+                kill_when(collect(&out, EPISODES), || listed_count(&out) > listed, jitter)
+            }
         };
         let seeds = listed_seeds(&out);
         assert!(seeds.starts_with(&before), "a kill lost listed episodes: {before:?} then {seeds:?}");
-        landed += usize::from(killed && !seeds.is_empty() && seeds.len() < 6);
+        landed += usize::from(killed && !seeds.is_empty() && seeds.len() < EPISODES);
         before = seeds;
     }
     assert!(landed >= 2, "fewer than two kills landed mid-collection (after an episode, before the end): {landed}");
-    let finished = collect(&out, 6).output().unwrap();
+    let finished = collect(&out, EPISODES).output().unwrap();
     assert!(finished.status.success(), "{}", String::from_utf8_lossy(&finished.stderr));
     let seeds = listed_seeds(&out);
     assert!(seeds.starts_with(&before));
     let mut unique = seeds.clone();
     unique.sort_unstable();
     unique.dedup();
-    assert_eq!((seeds.len(), unique.len()), (6, 6), "six episodes, each once: {seeds:?}");
+    assert_eq!((seeds.len(), unique.len()), (EPISODES, EPISODES), "every episode, each once: {seeds:?}");
 }
 
 /// The last step written to `metrics.csv` (0 if none).

@@ -132,7 +132,7 @@ impl Observation {
             });
         }
         let proprio: [f32; 8] = std::array::from_fn(|i| episode.proprio[k * 8 + i]);
-        let keyframe = (0..k).filter(|&i| !is_detour(&episode.action, i)).count();
+        let keyframe = keyframe_index(&episode.action, k);
         Ok(Self { size: h, cameras, proprio, instruction: episode.instruction.clone(), keyframe })
     }
 
@@ -147,12 +147,19 @@ impl Observation {
 /// with the action of the approach keyframe's successor, which is also the action of the sample
 /// after it (the observation at the approach), so a detour is a sample whose action equals its
 /// successor's. Expert keyframes never repeat (a missed grasp's samples act grasp, approach,
-/// grasp). Datasets collected with `--perturb-target approach` (arm R) are not recognised: their
-/// detours count as keyframes.
+/// grasp). In datasets collected with `--perturb-target approach` (arm R) the detour shares its
+/// action with the clean sample *before* it, so that one is flagged instead; the keyframe
+/// indices ([`keyframe_index`]) come out the same from the sample after the detour on.
 /// `actions` is an episode's `action` tensor, [K, 8] row-major.
 pub fn is_detour(actions: &[f32], k: usize) -> bool {
     let next = k + 1;
     (next + 1) * 8 <= actions.len() && actions[k * 8..next * 8] == actions[next * 8..(next + 1) * 8]
+}
+
+/// Keyframes executed before sample `k` of an episode whose `action` tensor is `actions`: the
+/// samples before it that are not detours ([`is_detour`]).
+pub fn keyframe_index(actions: &[f32], k: usize) -> usize {
+    (0..k).filter(|&i| !is_detour(actions, i)).count()
 }
 
 /// The lifted feature pixels of an observation that lie in the workspace.

@@ -111,7 +111,7 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
     let detours: Vec<usize> = (0..next.actions.len()).filter(|&j| is_detour(&flat, j)).collect();
     assert_eq!(detours, approaches.iter().enumerate().map(|(i, &k)| k + i + 1).collect::<Vec<_>>());
     // a detour's sample stands in for the state after its approach: the same index as the
-    // clean sample at the approach (above cap 1, detour, at cap 1, pressed, detour, at cap 2, ...)
+    // clean sample at the approach (start, detour near cap 1, above cap 1, pressed 1, detour near cap 2, above cap 2, pressed 2)
     let indices: Vec<usize> = (0..next.actions.len()).map(|j| keyframe_index(&flat, j)).collect();
     assert_eq!(indices, [0, 1, 1, 2, 3, 3, 4]);
     let clean_flat: Vec<f32> = clean.actions.iter().flatten().copied().collect();

@@ -633,3 +633,55 @@ fn the_keyframe_index_reaches_the_condition_only_when_configured() {
     config.observation.keyframe_index = false;
     assert_eq!(condition(&config, &mut text, 0, None), condition(&config, &mut text, 4, None));
 }
+
+#[test]
+fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
+    use candle_core::{DType, Device, Tensor};
+    use flowram::policy::inputs::{Augmentation, prefix_inputs};
+    use flowram::policy::network::model::FlowRam;
+    let episode = demonstration();
+    let mut config = tiny_config();
+    config.observation.keyframe_index = true;
+    config.model.instruction_adaln = true;
+    let mut text = text();
+    let c = config.model.channels;
+    let rows = flowram::policy::config::MAX_KEYFRAME_INDEX + 1;
+    let table = Tensor::randn(0.0f32, 1.0, (rows, c), &Device::Cpu).unwrap().to_dtype(DType::F32).unwrap();
+    let query = Tensor::randn(0.0f32, 1.0, (c, c), &Device::Cpu).unwrap().to_dtype(DType::F32).unwrap();
+    // The AdaLN condition at keyframe index k, with the index table above and, when `trained`,
+    // the pooling's query weights above (a fresh model's query is zero).
+    let condition = |config: &PolicyConfig, text: &mut TextEncoder, keyframe: usize, trained: bool| {
+        let varmap = candle_nn::VarMap::new();
+        let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &Device::Cpu);
+        let model = FlowRam::new(config, vb).unwrap();
+        let vars = varmap.data().lock().unwrap().clone();
+        let conditioned = config.model.instruction_pooling == InstructionPooling::Conditioned;
+        assert_eq!(vars.contains_key("pooling_query.query.weight"), conditioned);
+        vars["keyframe_embedding"].set(&table).unwrap();
+        if trained && conditioned {
+            vars["pooling_query.query.weight"].set(&query).unwrap();
+        }
+        let observation = Observation { keyframe, ..Observation::from_episode(episode, 1).unwrap() };
+        let prepared = flowram::policy::inputs::prepare(&observation, config, text).unwrap();
+        let prefix = prefix_inputs(config, &[(&prepared, Augmentation::NONE)]).unwrap();
+        model.encode(&prefix).unwrap().condition.to_vec2::<f32>().unwrap()[0].clone()
+    };
+    // How far the condition moves from index 0 to index 4 beyond the index table's own rows:
+    // what the pooled instruction's change adds.
+    let rows_of = table.to_vec2::<f32>().unwrap();
+    let mut beyond_table = |config: &PolicyConfig, trained: bool| -> f32 {
+        let (first, fifth) = (condition(config, &mut text, 0, trained), condition(config, &mut text, 4, trained));
+        (0..c).map(|i| ((fifth[i] - first[i]) - (rows_of[4][i] - rows_of[0][i])).abs()).fold(0.0, f32::max)
+    };
+    // "attention": the pooled instruction is the same at every index
+    config.model.instruction_pooling = InstructionPooling::Attention;
+    let attention = beyond_table(&config, true);
+    assert!(attention < 1e-4, "attention pooling moved with the keyframe index by {attention}");
+    // "conditioned", fresh: the query starts at zero, so it pools as "attention" does
+    config.model.instruction_pooling = InstructionPooling::Conditioned;
+    let fresh = beyond_table(&config, false);
+    assert!(fresh < 1e-4, "a fresh conditioned pooling moved with the keyframe index by {fresh}");
+    // "conditioned" with a query: the index chooses other words, and the condition shows it
+    let trained = beyond_table(&config, true);
+    assert!(trained > 1e-2, "the conditioned pooling did not follow the keyframe index ({trained})");
+}

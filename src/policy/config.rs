@@ -82,7 +82,11 @@ pub struct ModelConfig {
     /// What the instruction AdaLN reads: `"sentence"` (the MiniLM sentence embedding, a mean over
     /// the tokens) or `"attention"` (a learned softmax pooling of the instruction's token
     /// features, so the word that tells variations apart, "left" or "red", can dominate the
-    /// condition rather than be averaged with the words every instruction of the task shares).
+    /// condition rather than be averaged with the words every instruction of the task shares)
+    /// or `"conditioned"` (that pooling with scores that also depend on the AdaLN condition,
+    /// proprioception plus `observation.keyframe_index`, and on each token's place in the
+    /// instruction, so "push the red button, then the maroon one" can pool to "red" before the
+    /// first press and to "maroon" after it).
     #[serde(default)]
     pub instruction_pooling: InstructionPooling,
     /// Append an instruction-pointer token to the prefix: a softmax attention whose query is the
@@ -133,6 +137,9 @@ pub enum InstructionPooling {
     #[default]
     Sentence,
     Attention,
+    /// `Attention` plus a zero-initialised query from the condition against keys of each
+    /// token's features and its index in the instruction: a new model starts as `Attention`.
+    Conditioned,
 }
 
 /// Conditional flow matching.

@@ -38,6 +38,11 @@
 //! With `model.relational_pointer` (both pointers), the position is p + beta * (p - g) + offset,
 //! p the position pointer's pointed position, g the instruction pointer's, beta a linear readout
 //! of the action token (zero at initialisation).
+//!
+//! The instruction these read is one vector pooled from its tokens (`model.instruction_pooling`):
+//! the sentence embedding, a learned softmax pooling, or that pooling with scores that also depend
+//! on the condition (proprioception, keyframe index), so that a sequence's phase can choose its
+//! word.
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
@@ -230,6 +235,45 @@ impl InstructionPointer {
     }
 }
 
+/// The condition's part of the instruction pooling's scores (`model.instruction_pooling =
+/// "conditioned"`): a query from the AdaLN condition against keys of each token's features plus
+/// a learned embedding of its index in the instruction, so the pooling can follow a sequence's
+/// phase. The query starts at zero: a new model pools as `"attention"` does.
+#[derive(Debug, Clone)]
+struct PoolingQuery {
+    query: Linear,
+    key: Linear,
+    /// [Lt, C]
+    index: Tensor,
+}
+
+impl PoolingQuery {
+    fn new(c: usize, tokens: usize, vb: VarBuilder) -> Result<Self> {
+        let w = vb.pp("query").get_with_hints((c, c), "weight", candle_nn::Init::Const(0.0))?;
+        Ok(Self {
+            query: Linear::new(w, None),
+            key: candle_nn::linear_no_bias(TEXT_HIDDEN_SIZE, c, vb.pp("key"))?,
+            index: vb.get_with_hints((tokens, c), "index", candle_nn::Init::Randn { mean: 0.0, stdev: 0.02 })?,
+        })
+    }
+
+    /// The instruction's tokens [B, Lt, 384] and the condition [B, C] -> logits [B, Lt, 1].
+    fn logits(&self, language: &Tensor, condition: &Tensor) -> Result<Tensor> {
+        let (_, lt, _) = language.dims3()?;
+        if lt != self.index.dim(0)? {
+            return Err(PolicyError::Invalid(format!(
+                "the instruction has {lt} tokens but the conditioned pooling was built for {} \
+                 (observation.language_tokens): prepare the observation with this model's config",
+                self.index.dim(0)?
+            )));
+        }
+        let keys = self.key.forward(language)?.broadcast_add(&self.index)?; // [B, Lt, C]
+        let q = self.query.forward(condition)?.unsqueeze(2)?; // [B, C, 1]
+        let scale = 1.0 / (keys.dim(2)? as f64).sqrt();
+        Ok(keys.matmul(&q)?.affine(scale, 0.0)?)
+    }
+}
+
 /// The position pointer (`model.position_pointer`): the predicted position as an attention over
 /// the scene tokens' positions.
 #[derive(Debug, Clone)]
@@ -292,8 +336,11 @@ pub struct FlowRam {
     /// [MAX_KEYFRAME_INDEX + 1, C]: the keyframe index's part of the AdaLN condition
     /// (`observation.keyframe_index`), zero-initialised.
     keyframe_embedding: Option<Tensor>,
-    /// Scores of the instruction's tokens for `model.instruction_pooling = "attention"`.
+    /// Scores of the instruction's tokens for `model.instruction_pooling = "attention"` or
+    /// `"conditioned"`.
     instruction_scores: Option<Linear>,
+    /// The condition's part of those scores (`model.instruction_pooling = "conditioned"`).
+    pooling_query: Option<PoolingQuery>,
     /// `model.instruction_pointer`.
     pointer: Option<InstructionPointer>,
     /// `model.position_pointer`.
@@ -314,6 +361,8 @@ impl FlowRam {
         config.validate()?;
         let c = config.model.channels;
         let o = &config.observation;
+        // Whether anything reads the pooled instruction.
+        let pools = config.model.instruction_adaln || config.model.instruction_pointer || config.model.position_pointer;
         let encoder_config = ImageEncoderConfig {
             image_size: o.image_size,
             patch_size: o.feature_stride,
@@ -349,12 +398,13 @@ impl FlowRam {
             } else {
                 None
             },
-            instruction_scores: if (config.model.instruction_adaln
-                || config.model.instruction_pointer
-                || config.model.position_pointer)
-                && config.model.instruction_pooling == InstructionPooling::Attention
-            {
+            instruction_scores: if pools && config.model.instruction_pooling != InstructionPooling::Sentence {
                 Some(candle_nn::linear(TEXT_HIDDEN_SIZE, 1, vb.pp("instruction_scores"))?)
+            } else {
+                None
+            },
+            pooling_query: if pools && config.model.instruction_pooling == InstructionPooling::Conditioned {
+                Some(PoolingQuery::new(c, o.language_tokens, vb.pp("pooling_query"))?)
             } else {
                 None
             },
@@ -431,10 +481,14 @@ impl FlowRam {
             heads += 2.0 * c as f64 + 9.0;
         }
         let mut pointer_prefix = 0.0;
+        if self.pooling_query.is_some() {
+            // The conditioned pooling's keys, query and scores, once per observation.
+            pointer_prefix += 2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c + c * c + o.language_tokens * c) as f64;
+        }
         if self.position_pointer.is_some() {
             // Keys of the semantic tokens and the instruction's query once; per step the geometric
             // tokens' keys, the query, the scores and the weighted mean of the positions.
-            pointer_prefix = 2.0 * (o.semantic_tokens * c * c + TEXT_HIDDEN_SIZE * c) as f64;
+            pointer_prefix += 2.0 * (o.semantic_tokens * c * c + TEXT_HIDDEN_SIZE * c) as f64;
             let n = (o.semantic_tokens + o.geometric_tokens) as f64;
             heads += 2.0 * ((o.geometric_tokens + 1) * c * c) as f64 + 2.0 * n * (c + 3) as f64;
         }
@@ -478,9 +532,19 @@ impl FlowRam {
         let semantic = Self::gather(features, &inputs.semantic_cells, b)?
             .add(&positional_encoding(&inputs.semantic_xyz, c)?)?
             .broadcast_add(&self.type_embedding(SEMANTIC)?)?;
+        let mut condition = self.proprio_mlp.forward(&inputs.proprio)?;
+        if let Some(table) = &self.keyframe_embedding {
+            condition = condition.add(&table.index_select(&inputs.keyframe, 0)?)?;
+        }
         let instruction = match &self.instruction_scores {
             None => inputs.instruction.clone(),
-            Some(scores) => attention_pool(&inputs.language, scores)?,
+            Some(scores) => {
+                let conditioned = match &self.pooling_query {
+                    Some(q) => Some(q.logits(&inputs.language, &condition)?),
+                    None => None,
+                };
+                attention_pool(&inputs.language, scores, conditioned.as_ref())?
+            }
         };
         let memory = match &self.position_pointer {
             Some(p) => Some(p.memory(&semantic, &inputs.semantic_xyz, &instruction)?),
@@ -493,12 +557,8 @@ impl FlowRam {
             }
             None => (Tensor::cat(&[language, semantic], 1)?, None),
         };
-        let mut condition = self.proprio_mlp.forward(&inputs.proprio)?;
         if let Some(mlp) = &self.instruction_mlp {
             condition = condition.add(&mlp.forward(&instruction)?)?;
-        }
-        if let Some(table) = &self.keyframe_embedding {
-            condition = condition.add(&table.index_select(&inputs.keyframe, 0)?)?;
         }
         Ok(Prefix { tokens, condition, memory, goal })
     }
@@ -647,9 +707,13 @@ fn attention_scores(query: &Tensor, keys: &Tensor) -> Result<Tensor> {
 
 /// Softmax pooling of token features [B, L, D] by learned scores, over the non-padding tokens
 /// (padding is all zeros): [B, D].
-fn attention_pool(tokens: &Tensor, scores: &Linear) -> Result<Tensor> {
+fn attention_pool(tokens: &Tensor, scores: &Linear, conditioned: Option<&Tensor>) -> Result<Tensor> {
     let padding = tokens.abs()?.sum_keepdim(2)?.eq(0f32)?.to_dtype(tokens.dtype())?; // [B, L, 1]
-    let logits = scores.forward(tokens)?.sub(&padding.affine(1e9, 0.0)?)?;
+    let mut logits = scores.forward(tokens)?;
+    if let Some(extra) = conditioned {
+        logits = logits.add(extra)?;
+    }
+    let logits = logits.sub(&padding.affine(1e9, 0.0)?)?;
     let weights = candle_nn::ops::softmax(&logits, 1)?;
     Ok(tokens.broadcast_mul(&weights)?.sum(1)?)
 }

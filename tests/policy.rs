@@ -650,7 +650,7 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
     let query = Tensor::randn(0.0f32, 1.0, (c, c), &Device::Cpu).unwrap().to_dtype(DType::F32).unwrap();
     // The AdaLN condition at keyframe index k, with the index table above and, when `trained`,
     // the pooling's query weights above (a fresh model's query is zero).
-    let condition = |config: &PolicyConfig, text: &mut TextEncoder, keyframe: usize, trained: bool| {
+    let condition = |config: &PolicyConfig, text: &mut TextEncoder, keyframe: usize, trained: bool, words: bool| {
         let varmap = candle_nn::VarMap::new();
         let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &Device::Cpu);
         let model = FlowRam::new(config, vb).unwrap();
@@ -661,6 +661,11 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
         if trained && conditioned {
             vars["pooling_query.query.weight"].set(&query).unwrap();
         }
+        if !words && conditioned {
+            // keys from the tokens' places in the instruction alone
+            let key = &vars["pooling_query.key.weight"];
+            key.set(&key.as_tensor().zeros_like().unwrap()).unwrap();
+        }
         let observation = Observation { keyframe, ..Observation::from_episode(episode, 1).unwrap() };
         let prepared = flowram::policy::inputs::prepare(&observation, config, text).unwrap();
         let prefix = prefix_inputs(config, &[(&prepared, Augmentation::NONE)]).unwrap();
@@ -669,19 +674,23 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
     // How far the condition moves from index 0 to index 4 beyond the index table's own rows:
     // what the pooled instruction's change adds.
     let rows_of = table.to_vec2::<f32>().unwrap();
-    let mut beyond_table = |config: &PolicyConfig, trained: bool| -> f32 {
-        let (first, fifth) = (condition(config, &mut text, 0, trained), condition(config, &mut text, 4, trained));
+    let mut beyond_table = |config: &PolicyConfig, trained: bool, words: bool| -> f32 {
+        let first = condition(config, &mut text, 0, trained, words);
+        let fifth = condition(config, &mut text, 4, trained, words);
         (0..c).map(|i| ((fifth[i] - first[i]) - (rows_of[4][i] - rows_of[0][i])).abs()).fold(0.0, f32::max)
     };
     // "attention": the pooled instruction is the same at every index
     config.model.instruction_pooling = InstructionPooling::Attention;
-    let attention = beyond_table(&config, true);
+    let attention = beyond_table(&config, true, true);
     assert!(attention < 1e-4, "attention pooling moved with the keyframe index by {attention}");
     // "conditioned", fresh: the query starts at zero, so it pools as "attention" does
     config.model.instruction_pooling = InstructionPooling::Conditioned;
-    let fresh = beyond_table(&config, false);
+    let fresh = beyond_table(&config, false, true);
     assert!(fresh < 1e-4, "a fresh conditioned pooling moved with the keyframe index by {fresh}");
     // "conditioned" with a query: the index chooses other words, and the condition shows it
-    let trained = beyond_table(&config, true);
+    let trained = beyond_table(&config, true, true);
     assert!(trained > 1e-2, "the conditioned pooling did not follow the keyframe index ({trained})");
+    // ... also through the embedding of each token's place alone ("the first colour word")
+    let places = beyond_table(&config, true, false);
+    assert!(places > 1e-2, "the tokens' places in the instruction did not reach the pooling ({places})");
 }

@@ -480,20 +480,21 @@ impl FlowRam {
         if self.relation.is_some() {
             heads += 2.0 * c as f64 + 9.0;
         }
-        let mut pointer_prefix = 0.0;
+        let mut once_per_observation = 0.0;
         if self.pooling_query.is_some() {
             // The conditioned pooling's keys, query and scores, once per observation.
-            pointer_prefix += 2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c + c * c + o.language_tokens * c) as f64;
+            once_per_observation +=
+                2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c + c * c + o.language_tokens * c) as f64;
         }
         if self.position_pointer.is_some() {
             // Keys of the semantic tokens and the instruction's query once; per step the geometric
             // tokens' keys, the query, the scores and the weighted mean of the positions.
-            pointer_prefix += 2.0 * (o.semantic_tokens * c * c + TEXT_HIDDEN_SIZE * c) as f64;
+            once_per_observation += 2.0 * (o.semantic_tokens * c * c + TEXT_HIDDEN_SIZE * c) as f64;
             let n = (o.semantic_tokens + o.geometric_tokens) as f64;
             heads += 2.0 * ((o.geometric_tokens + 1) * c * c) as f64 + 2.0 * n * (c + 3) as f64;
         }
         let step = 2.0 * (ACTION_DIMS * c) as f64 + 2.0 * (c * c) as f64 + scan(o.geometric_tokens + 1, true) + heads;
-        encoder + prefix + pointer_prefix + steps as f64 * step
+        encoder + prefix + once_per_observation + steps as f64 * step
     }
 
     /// Image features of every feature pixel, [B * cams * cells, C] (row order: sample, camera,

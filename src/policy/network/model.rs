@@ -540,10 +540,8 @@ impl FlowRam {
         let instruction = match &self.instruction_scores {
             None => inputs.instruction.clone(),
             Some(scores) => {
-                let conditioned = match &self.pooling_query {
-                    Some(q) => Some(q.logits(&inputs.language, &condition)?),
-                    None => None,
-                };
+                let conditioned =
+                    self.pooling_query.as_ref().map(|q| q.logits(&inputs.language, &condition)).transpose()?;
                 attention_pool(&inputs.language, scores, conditioned.as_ref())?
             }
         };
@@ -707,7 +705,7 @@ fn attention_scores(query: &Tensor, keys: &Tensor) -> Result<Tensor> {
 }
 
 /// Softmax pooling of token features [B, L, D] by learned scores, over the non-padding tokens
-/// (padding is all zeros): [B, D].
+/// (padding is all zeros), plus `conditioned` [B, L, 1] when given ([`PoolingQuery`]): [B, D].
 fn attention_pool(tokens: &Tensor, scores: &Linear, conditioned: Option<&Tensor>) -> Result<Tensor> {
     let padding = tokens.abs()?.sum_keepdim(2)?.eq(0f32)?.to_dtype(tokens.dtype())?; // [B, L, 1]
     let mut logits = scores.forward(tokens)?;

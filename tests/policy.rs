@@ -581,11 +581,30 @@ fn shipped_policy_configs_load_and_the_ten_task_box_holds_every_expert_keyframe(
     }
 }
 
+/// The AdaLN condition the Mamba blocks are modulated by, for observation 1 of the
+/// demonstration taken after `keyframe` keyframes, from a fresh seeded model whose variables
+/// `set` has changed (their modulation starts at zero, adaLN-Zero, so a fresh model's output
+/// cannot show the condition).
+fn condition_at(
+    config: &PolicyConfig,
+    text: &mut TextEncoder,
+    keyframe: usize,
+    set: impl FnOnce(&std::collections::HashMap<String, candle_core::Var>),
+) -> Vec<f32> {
+    use flowram::policy::inputs::{Augmentation, prefix_inputs};
+    let varmap = candle_nn::VarMap::new();
+    let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &candle_core::Device::Cpu);
+    let model = flowram::policy::network::model::FlowRam::new(config, vb).unwrap();
+    set(&varmap.data().lock().unwrap());
+    let observation = Observation { keyframe, ..Observation::from_episode(demonstration(), 1).unwrap() };
+    let prepared = flowram::policy::inputs::prepare(&observation, config, text).unwrap();
+    let prefix = prefix_inputs(config, &[(&prepared, Augmentation::NONE)]).unwrap();
+    model.encode(&prefix).unwrap().condition.to_vec2::<f32>().unwrap()[0].clone()
+}
+
 #[test]
 fn the_keyframe_index_reaches_the_condition_only_when_configured() {
     use candle_core::{DType, Device, Tensor};
-    use flowram::policy::inputs::{Augmentation, prefix_inputs};
-    use flowram::policy::network::model::FlowRam;
     let episode = demonstration();
     // a plain expert episode: observation k comes after k keyframes
     for k in 0..episode.keyframes() {
@@ -594,23 +613,13 @@ fn the_keyframe_index_reaches_the_condition_only_when_configured() {
     let mut config = tiny_config();
     config.observation.keyframe_index = true;
     let mut text = text();
-    // the AdaLN condition the Mamba blocks are modulated by (their modulation starts at zero,
-    // adaLN-Zero, so a fresh model's output cannot show it)
     let condition = |config: &PolicyConfig, text: &mut TextEncoder, keyframe: usize, table: Option<&Tensor>| {
-        let varmap = candle_nn::VarMap::new();
-        let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &Device::Cpu);
-        let model = FlowRam::new(config, vb).unwrap();
-        let vars = varmap.data().lock().unwrap().clone();
-        assert_eq!(vars.contains_key("keyframe_embedding"), config.observation.keyframe_index);
-        if let (Some(var), Some(table)) = (vars.get("keyframe_embedding"), table) {
-            var.set(table).unwrap();
-        }
-        let observation = Observation { keyframe, ..Observation::from_episode(episode, 1).unwrap() };
-        let prepared = flowram::policy::inputs::prepare(&observation, config, text).unwrap();
-        let observations = [(&prepared, Augmentation::NONE)];
-        let prefix = prefix_inputs(config, &observations).unwrap();
-        let encoded = model.encode(&prefix).unwrap();
-        encoded.condition.to_vec2::<f32>().unwrap()[0].clone()
+        condition_at(config, text, keyframe, |vars| {
+            assert_eq!(vars.contains_key("keyframe_embedding"), config.observation.keyframe_index);
+            if let (Some(var), Some(table)) = (vars.get("keyframe_embedding"), table) {
+                var.set(table).unwrap();
+            }
+        })
     };
     // zero-initialised: a new model starts as the one without the index
     assert_eq!(condition(&config, &mut text, 0, None), condition(&config, &mut text, 4, None));
@@ -637,9 +646,6 @@ fn the_keyframe_index_reaches_the_condition_only_when_configured() {
 #[test]
 fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
     use candle_core::{DType, Device, Tensor};
-    use flowram::policy::inputs::{Augmentation, prefix_inputs};
-    use flowram::policy::network::model::FlowRam;
-    let episode = demonstration();
     let mut config = tiny_config();
     config.observation.keyframe_index = true;
     config.model.instruction_adaln = true;
@@ -651,25 +657,19 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
     // The AdaLN condition at keyframe index k, with the index table above and, when `trained`,
     // the pooling's query weights above (a fresh model's query is zero).
     let condition = |config: &PolicyConfig, text: &mut TextEncoder, keyframe: usize, trained: bool, words: bool| {
-        let varmap = candle_nn::VarMap::new();
-        let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &Device::Cpu);
-        let model = FlowRam::new(config, vb).unwrap();
-        let vars = varmap.data().lock().unwrap().clone();
-        let conditioned = config.model.instruction_pooling == InstructionPooling::Conditioned;
-        assert_eq!(vars.contains_key("pooling_query.query.weight"), conditioned);
-        vars["keyframe_embedding"].set(&table).unwrap();
-        if trained && conditioned {
-            vars["pooling_query.query.weight"].set(&query).unwrap();
-        }
-        if !words && conditioned {
-            // keys from the tokens' places in the instruction alone
-            let key = &vars["pooling_query.key.weight"];
-            key.set(&key.as_tensor().zeros_like().unwrap()).unwrap();
-        }
-        let observation = Observation { keyframe, ..Observation::from_episode(episode, 1).unwrap() };
-        let prepared = flowram::policy::inputs::prepare(&observation, config, text).unwrap();
-        let prefix = prefix_inputs(config, &[(&prepared, Augmentation::NONE)]).unwrap();
-        model.encode(&prefix).unwrap().condition.to_vec2::<f32>().unwrap()[0].clone()
+        condition_at(config, text, keyframe, |vars| {
+            let conditioned = config.model.instruction_pooling == InstructionPooling::Conditioned;
+            assert_eq!(vars.contains_key("pooling_query.query.weight"), conditioned);
+            vars["keyframe_embedding"].set(&table).unwrap();
+            if trained && conditioned {
+                vars["pooling_query.query.weight"].set(&query).unwrap();
+            }
+            if !words && conditioned {
+                // keys from the tokens' places in the instruction alone
+                let key = &vars["pooling_query.key.weight"];
+                key.set(&key.as_tensor().zeros_like().unwrap()).unwrap();
+            }
+        })
     };
     // How far the condition moves from index 0 to index 4 beyond the index table's own rows:
     // what the pooled instruction's change adds.

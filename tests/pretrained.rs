@@ -219,3 +219,44 @@ fn the_ten_task_checkpoint_predicts_what_it_predicted_when_shipped() {
 fn the_ten_task_checkpoint_goes_to_the_drawer_it_is_told() {
     goes_to_the_drawer_it_is_told("ten-tasks");
 }
+
+/// `bench heldout`'s report: one row per held-out keyframe, in episode order, whose expert
+/// positions are the episodes' own and whose errors the summaries (magnitude and signed bias)
+/// are made of.
+#[test]
+fn the_heldout_report_lists_every_keyframe_with_the_errors_it_summarises() {
+    use flowram::policy::training::data::TrainingData;
+    use flowram::rollout::evaluation::heldout_errors;
+    let mut policy = load("five-tasks");
+    let train = vec![expert(&policy, "push_buttons", 0, 0), expert(&policy, "open_drawer", 0, 0)];
+    let train = TrainingData::from_episodes(train).unwrap();
+    let held = vec![expert(&policy, "push_buttons", 20, SEED), expert(&policy, "open_drawer", 1, SEED + 1)];
+    let held = TrainingData::from_episodes(held).unwrap();
+    let report = heldout_errors(&mut policy, &train, &held, 2, 1, &mut ()).unwrap();
+    let expected: Vec<(String, usize, [f32; 3])> = held
+        .episodes()
+        .iter()
+        .flat_map(|e| (0..e.keyframes()).map(move |k| (e.task.clone(), k, Observation::episode_action(e, k).position)))
+        .collect();
+    assert_eq!(report.per_keyframe.len(), expected.len());
+    assert_eq!(report.keyframes, expected.len());
+    let mut rows: Vec<_> = report.per_keyframe.iter().collect();
+    rows.sort_by(|a, b| a.task.cmp(&b.task)); // tasks are evaluated in name order, episodes in order
+    let mut expected = expected;
+    expected.sort_by(|a, b| a.0.cmp(&b.0));
+    for (row, (task, k, position)) in rows.iter().zip(&expected) {
+        assert_eq!((&row.task, row.keyframe, row.expert_position), (task, *k, *position));
+        let d: f64 =
+            (0..3).map(|i| f64::from(row.predicted_position[i] - row.expert_position[i]).powi(2)).sum::<f64>().sqrt();
+        assert!((row.position_mm - d * 1e3).abs() < 1e-3, "{} mm against {} mm", row.position_mm, d * 1e3);
+    }
+    let n = rows.len() as f64;
+    let mean_mm = rows.iter().map(|r| r.position_mm).sum::<f64>() / n;
+    assert!((report.model.position_mm_mean - mean_mm).abs() < 1e-6);
+    for i in 0..3 {
+        let bias = rows.iter().map(|r| f64::from(r.predicted_position[i] - r.expert_position[i])).sum::<f64>() / n;
+        assert!((report.model.position_bias_mm[i] - bias * 1e3).abs() < 1e-3, "axis {i}");
+    }
+    let bias = report.model.position_bias_mm.iter().map(|b| b * b).sum::<f64>().sqrt();
+    assert!(bias <= report.model.position_mm_mean + 1e-9, "a mean offset is never longer than the mean error");
+}

@@ -95,6 +95,42 @@ fn push_buttons_expert_succeeds_and_idling_does_not() {
     assert_eq!(success_rate(task.as_ref(), || Actor::Idle { seconds: 2 }, 10), 0);
 }
 
+/// A press counts once the cap is down 3 mm (RLBench's `JointCondition(.., 0.003)`), and the
+/// presses must be the instructed colours in order.
+#[test]
+fn push_buttons_counts_presses_past_3_mm_in_the_instructed_order() {
+    use rand::SeedableRng;
+    let task = tasks::by_name("push_buttons").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    world.reset_to("home").unwrap();
+    // Variation 20: push colour 0, then colour 1.
+    let mut state = task.reset(&mut world, 20, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    let [first, second] = [state.targets[0].clone(), state.targets[1].clone()];
+    let press = |world: &mut flowram::sim::World, button: &str, depth_mm: f64| {
+        world.set_joint_position(&format!("{button}_press"), -depth_mm * 1e-3).unwrap();
+    };
+    press(&mut world, &first, 2.5);
+    task.observe(&world, &mut state);
+    assert!(state.events.is_empty(), "2.5 mm is not a press: {:?}", state.events);
+    press(&mut world, &first, 3.5);
+    task.observe(&world, &mut state);
+    assert_eq!(state.events, [first.clone()]);
+    assert!(!task.success(&world, &state), "one of two buttons pushed");
+    press(&mut world, &first, 0.0);
+    press(&mut world, &second, 3.5);
+    task.observe(&world, &mut state);
+    assert!(task.success(&world, &state), "{:?}", state.events);
+    // The same presses the other way round fail.
+    let mut state = task.reset(&mut world, 20, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    for button in [&second, &first] {
+        press(&mut world, button, 8.0);
+        task.observe(&world, &mut state);
+        press(&mut world, button, 0.0);
+    }
+    assert_eq!(state.events, [second, first]);
+    assert!(!task.success(&world, &state));
+}
+
 #[test]
 fn close_jar_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("close_jar").unwrap();

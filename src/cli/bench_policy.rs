@@ -305,9 +305,12 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     );
     let line = |name: &str, e: &Errors| {
         println!(
-            "  {name:>13}: position {:.1} mm mean / {:.1} median, rotation {:.1} deg mean / {:.1} median, gripper {:.0} % right",
+            "  {name:>13}: position {:.1} mm mean / {:.1} median (bias x {:+.1} y {:+.1} z {:+.1}), rotation {:.1} deg mean / {:.1} median, gripper {:.0} % right",
             e.position_mm_mean,
             e.position_mm_median,
+            e.position_bias_mm[0],
+            e.position_bias_mm[1],
+            e.position_bias_mm[2],
             e.rotation_deg_mean,
             e.rotation_deg_median,
             e.gripper_accuracy * 100.0

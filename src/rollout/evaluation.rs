@@ -371,6 +371,10 @@ pub struct Errors {
     pub rotation_deg_mean: f64,
     pub rotation_deg_median: f64,
     pub gripper_accuracy: f64,
+    /// Mean signed position error, predicted minus expert, along the world axes (mm): a model
+    /// that is precise but offset (a press that stops above the button) shows here, not in the
+    /// error's magnitude.
+    pub position_bias_mm: [f64; 3],
 }
 
 /// The errors of the model and the two baselines on the held-out keyframes of one task (or all).
@@ -419,22 +423,63 @@ pub struct HeldOutReport {
     pub target_choices: usize,
     /// The same per task.
     pub tasks: Vec<HeldOutErrors>,
+    /// Every held-out keyframe the model predicted, in the order evaluated.
+    pub per_keyframe: Vec<HeldOutKeyframe>,
     pub seconds: f64,
 }
 
-/// Position error (m), rotation error (rad) and whether the gripper is right, of one keyframe.
-type KeyframeError = (f32, f32, bool);
+/// One held-out keyframe: where the expert went and where the model (the consensus keyframe)
+/// predicted, world frame (m).
+#[derive(Debug, Clone, Serialize)]
+pub struct HeldOutKeyframe {
+    pub task: String,
+    pub variation: usize,
+    pub seed: u64,
+    /// The keyframe's index in its episode.
+    pub keyframe: usize,
+    pub expert_position: [f32; 3],
+    pub predicted_position: [f32; 3],
+    pub position_mm: f64,
+    pub rotation_deg: f64,
+    pub expert_gripper_open: bool,
+    pub predicted_gripper_open: bool,
+}
+
+/// Position offset predicted - expert (m), rotation error (rad) and whether the gripper is right,
+/// of one keyframe.
+#[derive(Debug, Clone, Copy)]
+struct KeyframeError {
+    offset: [f32; 3],
+    rotation: f32,
+    gripper_right: bool,
+}
+
+impl KeyframeError {
+    fn between(predicted: &KeyframePose, target: &KeyframePose) -> KeyframeError {
+        KeyframeError {
+            offset: std::array::from_fn(|i| predicted.position[i] - target.position[i]),
+            rotation: predicted.error_to(target).1,
+            gripper_right: predicted.gripper_open == target.gripper_open,
+        }
+    }
+
+    /// The position error (mm).
+    fn distance_mm(&self) -> f64 {
+        self.offset.iter().map(|d| f64::from(*d).powi(2)).sum::<f64>().sqrt() * 1e3
+    }
+}
 
 fn summarise(rows: &[KeyframeError]) -> Errors {
     let n = rows.len().max(1) as f64;
-    let pos: Vec<f64> = rows.iter().map(|r| f64::from(r.0) * 1e3).collect();
-    let rot: Vec<f64> = rows.iter().map(|r| f64::from(r.1).to_degrees()).collect();
+    let pos: Vec<f64> = rows.iter().map(KeyframeError::distance_mm).collect();
+    let rot: Vec<f64> = rows.iter().map(|r| f64::from(r.rotation).to_degrees()).collect();
     Errors {
         position_mm_mean: pos.iter().sum::<f64>() / n,
         position_mm_median: median(&pos),
         rotation_deg_mean: rot.iter().sum::<f64>() / n,
         rotation_deg_median: median(&rot),
-        gripper_accuracy: rows.iter().filter(|r| r.2).count() as f64 / n,
+        gripper_accuracy: rows.iter().filter(|r| r.gripper_right).count() as f64 / n,
+        position_bias_mm: std::array::from_fn(|i| rows.iter().map(|r| f64::from(r.offset[i])).sum::<f64>() * 1e3 / n),
     }
 }
 
@@ -576,6 +621,7 @@ pub fn heldout_errors(
     let mut swaps: Vec<(usize, f64)> = Vec::new();
     // per instructed keyframe: task index, whether the nearest variation's target is the own
     let mut choices: Vec<(usize, bool)> = Vec::new();
+    let mut per_keyframe: Vec<HeldOutKeyframe> = Vec::new();
     for (ti, task) in task_names.iter().enumerate() {
         let mut world = None;
         let task_baseline = mean_keyframe(train.episodes().iter().filter(|e| &e.task == task))?
@@ -590,11 +636,20 @@ pub fn heldout_errors(
                 let target = Observation::episode_action(e, k);
                 let options = SamplingOptions { steps, samples, drs: true, seed: k as u64 };
                 let predicted = policy.predict_keyframe(&observation, &options)?;
-                let row = |p: &KeyframePose| {
-                    let (d, r) = p.error_to(&target);
-                    (d, r, p.gripper_open == target.gripper_open)
-                };
+                let row = |p: &KeyframePose| KeyframeError::between(p, &target);
                 rows.push((ti, [row(&predicted), row(&baseline), row(&task_baseline)]));
+                per_keyframe.push(HeldOutKeyframe {
+                    task: task.clone(),
+                    variation: e.variation,
+                    seed: e.seed,
+                    keyframe: k,
+                    expert_position: target.position,
+                    predicted_position: predicted.position,
+                    position_mm: row(&predicted).distance_mm(),
+                    rotation_deg: f64::from(row(&predicted).rotation).to_degrees(),
+                    expert_gripper_open: target.gripper_open,
+                    predicted_gripper_open: predicted.gripper_open,
+                });
                 if let Some(at) = instructed.as_ref().filter(|at| at.k == k) {
                     let p = predicted.position.map(f64::from);
                     let nearest_other = at.others.iter().map(|o| distance(&p, o)).fold(f64::INFINITY, f64::min);
@@ -646,6 +701,7 @@ pub fn heldout_errors(
         target_accuracy: all.target_accuracy,
         target_choices: all.target_choices,
         tasks,
+        per_keyframe,
         seconds: started.elapsed().as_secs_f64(),
     })
 }

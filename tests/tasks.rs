@@ -114,7 +114,7 @@ fn push_buttons_counts_presses_past_3_mm_in_the_instructed_order() {
     assert!(state.events.is_empty(), "2.5 mm is not a press: {:?}", state.events);
     press(&mut world, &first, 3.5);
     task.observe(&world, &mut state);
-    assert_eq!(state.events, [first.clone()]);
+    assert_eq!(state.events, std::slice::from_ref(&first));
     assert!(!task.success(&world, &state), "one of two buttons pushed");
     press(&mut world, &first, 0.0);
     press(&mut world, &second, 3.5);

@@ -423,7 +423,8 @@ pub struct HeldOutReport {
     pub target_choices: usize,
     /// The same per task.
     pub tasks: Vec<HeldOutErrors>,
-    /// Every held-out keyframe the model predicted, in the order evaluated.
+    /// Every held-out keyframe the model predicted: tasks in name order, each task's episodes
+    /// and keyframes in dataset order.
     pub per_keyframe: Vec<HeldOutKeyframe>,
     pub seconds: f64,
 }
@@ -637,7 +638,8 @@ pub fn heldout_errors(
                 let options = SamplingOptions { steps, samples, drs: true, seed: k as u64 };
                 let predicted = policy.predict_keyframe(&observation, &options)?;
                 let row = |p: &KeyframePose| KeyframeError::between(p, &target);
-                rows.push((ti, [row(&predicted), row(&baseline), row(&task_baseline)]));
+                let model = row(&predicted);
+                rows.push((ti, [model, row(&baseline), row(&task_baseline)]));
                 per_keyframe.push(HeldOutKeyframe {
                     task: task.clone(),
                     variation: e.variation,
@@ -645,8 +647,8 @@ pub fn heldout_errors(
                     keyframe: k,
                     expert_position: target.position,
                     predicted_position: predicted.position,
-                    position_mm: row(&predicted).distance_mm(),
-                    rotation_deg: f64::from(row(&predicted).rotation).to_degrees(),
+                    position_mm: model.distance_mm(),
+                    rotation_deg: f64::from(model.rotation).to_degrees(),
                     expert_gripper_open: target.gripper_open,
                     predicted_gripper_open: predicted.gripper_open,
                 });

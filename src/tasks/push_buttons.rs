@@ -7,7 +7,9 @@
 //! distinct other colours. Reset: buttons at x in [0.42, 0.64] m, y in [-0.22, 0.22] m
 //! (world), at least 0.12 m apart. Expert (2 keyframes per button + a final lift): closed
 //! gripper above the cap, press 8 mm into it, on to the next. Success: the presses seen after
-//! each keyframe (a cap down 3 mm or more, as in RLBench) are exactly the target colours, in order.
+//! each keyframe (a cap down more than 3 mm, RLBench's threshold) are exactly the target colours,
+//! in order. That is stricter than RLBench, whose ordered condition set ignores presses of other
+//! buttons: here a press of a wrong or already-pressed button fails the episode.
 use nalgebra::{Translation3, Vector3};
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;

@@ -9,7 +9,9 @@
 //! gripper above the cap, press 8 mm into it, on to the next. Success: the presses seen after
 //! each keyframe (a cap down more than 3 mm, RLBench's threshold) are exactly the target colours,
 //! in order. That is stricter than RLBench, whose ordered condition set ignores presses of other
-//! buttons: here a press of a wrong or already-pressed button fails the episode.
+//! buttons: here a press of any button other than the next target fails the episode (the same
+//! button pressed twice in a row counts once). Presses are read at the end of each keyframe, where
+//! RLBench checks its conditions at every simulation step.
 use nalgebra::{Translation3, Vector3};
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;

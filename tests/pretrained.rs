@@ -231,10 +231,15 @@ fn the_heldout_report_lists_every_keyframe_with_the_errors_it_summarises() {
     let mut policy = load("five-tasks");
     let train = vec![expert(&policy, "push_buttons", 0, 0), expert(&policy, "open_drawer", 0, 0)];
     let train = TrainingData::from_episodes(train).unwrap();
-    let held = vec![expert(&policy, "push_buttons", 20, SEED), expert(&policy, "open_drawer", 1, SEED + 1)];
+    let held = vec![
+        expert(&policy, "push_buttons", 20, SEED),
+        expert(&policy, "open_drawer", 1, SEED + 1),
+        expert(&policy, "push_buttons", 0, SEED + 2),
+    ];
     let held = TrainingData::from_episodes(held).unwrap();
     let report = heldout_errors(&mut policy, &train, &held, 2, 1, &mut ()).unwrap();
-    // Held out in the order push_buttons, open_drawer: the report goes by task name.
+    // Held out in the order push_buttons, open_drawer, push_buttons: the report goes by task name,
+    // and within a task by the episodes' order (a stable sort keeps it).
     let mut expected: Vec<(String, usize, u64, usize, [f32; 3])> = held
         .episodes()
         .iter()

@@ -196,11 +196,14 @@ fn rendered_frames_become_the_same_observation_as_the_dataset_path() {
     let episode = result.to_dataset_episode().unwrap();
     for k in [0, result.observations.len() - 1] {
         let from_dataset = Observation::from_episode(&episode, k).unwrap();
-        let live = policy_observation(&result.episode.instruction, k, &result.observations[k]).unwrap();
+        let history: Vec<[f32; 8]> = result.observations[..k].iter().rev().map(|o| o.proprio).collect();
+        let live = policy_observation(&result.episode.instruction, k, &result.observations[k], &history).unwrap();
         assert_eq!(live.size, from_dataset.size);
         assert_eq!(live.proprio, from_dataset.proprio);
         assert_eq!(live.instruction, from_dataset.instruction);
         assert_eq!(live.keyframe, from_dataset.keyframe);
+        assert_eq!(live.history, from_dataset.history);
+        assert_eq!(live.history.len(), k);
         assert_eq!(live.cameras.len(), 2);
         for (a, b) in live.cameras.iter().zip(&from_dataset.cameras) {
             assert_eq!(a.rgb, b.rgb);
@@ -210,7 +213,7 @@ fn rendered_frames_become_the_same_observation_as_the_dataset_path() {
         }
     }
     let empty = KeyframeObservation { frames: Vec::new(), proprio: [0.0; 8] };
-    let err = policy_observation("open the top drawer", 0, &empty).unwrap_err().to_string();
+    let err = policy_observation("open the top drawer", 0, &empty, &[]).unwrap_err().to_string();
     assert!(err.contains("camera"), "{err}");
 }
 
@@ -258,6 +261,9 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     )
     .unwrap();
     assert_eq!(again.actions, result.actions);
+    // the gripper history restarts per episode too: the second episode's two observations only
+    let seen: Vec<[f32; 8]> = again.observations[..2].iter().rev().map(|o| o.proprio).collect();
+    assert_eq!(actor.history(), &seen[..]);
 }
 
 #[test]

@@ -473,6 +473,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("model", "relational_pointer"),
         ("flow", "pointer_weight"),
         ("flow", "pointer_sigma"),
+        ("observation", "proprio_history"),
     ] {
         json[section].as_object_mut().unwrap().remove(key);
     }
@@ -483,6 +484,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert!(!config.model.instruction_pointer && !config.model.position_pointer && !config.model.point_colour);
     assert!(!config.model.relational_pointer);
     assert_eq!((config.flow.pointer_weight, config.flow.pointer_sigma), (0.0, 0.02));
+    assert_eq!(config.observation.proprio_history, 1);
     config.validate().unwrap();
 }
 
@@ -591,12 +593,23 @@ fn condition_at(
     keyframe: usize,
     set: impl FnOnce(&std::collections::HashMap<String, candle_core::Var>),
 ) -> Vec<f32> {
+    let observation = Observation { keyframe, ..Observation::from_episode(demonstration(), 1).unwrap() };
+    condition_of(config, text, &observation, set)
+}
+
+/// The AdaLN condition of `observation` (as [`condition_at`]).
+fn condition_of(
+    config: &PolicyConfig,
+    text: &mut TextEncoder,
+    observation: &Observation,
+    set: impl FnOnce(&std::collections::HashMap<String, candle_core::Var>),
+) -> Vec<f32> {
     use flowram::policy::inputs::{Augmentation, prefix_inputs};
     let varmap = candle_nn::VarMap::new();
     let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &candle_core::Device::Cpu);
     let model = flowram::policy::network::model::FlowRam::new(config, vb).unwrap();
     set(&varmap.data().lock().unwrap());
-    let observation = Observation { keyframe, ..Observation::from_episode(demonstration(), 1).unwrap() };
+    let observation = observation.clone();
     let prepared = flowram::policy::inputs::prepare(&observation, config, text).unwrap();
     let prefix = prefix_inputs(config, &[(&prepared, Augmentation::NONE)]).unwrap();
     model.encode(&prefix).unwrap().condition.to_vec2::<f32>().unwrap()[0].clone()
@@ -641,6 +654,55 @@ fn the_keyframe_index_reaches_the_condition_only_when_configured() {
     // off (the paper): no table, and the index changes nothing
     config.observation.keyframe_index = false;
     assert_eq!(condition(&config, &mut text, 0, None), condition(&config, &mut text, 4, None));
+}
+
+#[test]
+fn the_gripper_history_reaches_the_condition_only_when_configured() {
+    let episode = demonstration();
+    // a plain expert episode: observation k remembers the k poses before it, most recent first
+    for k in 0..episode.keyframes() {
+        let observation = Observation::from_episode(episode, k).unwrap();
+        let expected: Vec<[f32; 8]> =
+            (0..k).rev().map(|i| std::array::from_fn(|j| episode.proprio[i * 8 + j])).collect();
+        assert_eq!(observation.history, expected, "keyframe {k}");
+    }
+    let mut config = tiny_config();
+    config.observation.proprio_history = 3;
+    let mut text = text();
+    let mut condition = |config: &PolicyConfig, observation: &Observation| {
+        condition_of(config, &mut text, observation, |vars| {
+            let inputs = vars["proprio_mlp.0.weight"].as_tensor().dims().to_vec();
+            assert_eq!(inputs[1], 10 * config.observation.proprio_history, "{inputs:?}");
+        })
+    };
+    let observation = Observation::from_episode(episode, 2).unwrap();
+    assert_eq!(observation.history.len(), 2);
+    let mut elsewhere = observation.clone();
+    elsewhere.history[1][0] += 0.05;
+    let mut closed = observation.clone();
+    closed.history[0][7] = 1.0 - closed.history[0][7];
+    let mut shorter = observation.clone();
+    shorter.history.truncate(1);
+    let mut padded = shorter.clone();
+    padded.history.push(padded.history[0]);
+    let base = condition(&config, &observation);
+    // where the gripper was two keyframes ago, and whether it was open one keyframe ago, move it
+    assert_ne!(base, condition(&config, &elsewhere));
+    assert_ne!(base, condition(&config, &closed));
+    // a short history repeats its oldest pose
+    assert_eq!(condition(&config, &shorter), condition(&config, &padded));
+    // a history longer than configured is not read
+    let mut longer = observation.clone();
+    longer.history.push([9.0; 8]);
+    assert_eq!(base, condition(&config, &longer));
+    // 1 (the default, the checkpoints before it): the history changes nothing
+    config.observation.proprio_history = 1;
+    assert_eq!(condition(&config, &observation), condition(&config, &elsewhere));
+    for bad in [0, flowram::policy::config::MAX_PROPRIO_HISTORY + 1] {
+        config.observation.proprio_history = bad;
+        let err = config.validate().unwrap_err().to_string();
+        assert!(err.contains("observation.proprio_history"), "{err}");
+    }
 }
 
 #[test]

@@ -56,7 +56,20 @@ pub struct ObservationConfig {
     /// Off (the paper): the observation alone.
     #[serde(default)]
     pub keyframe_index: bool,
+    /// Gripper poses the proprioception carries: the current one and the `proprio_history - 1`
+    /// before it (the TCP pose and gripper state at the episode's earlier keyframe observations,
+    /// most recent first; an episode's first keyframes repeat the oldest pose they have), each
+    /// normalised as the current one is and fed together through the proprioception MLP into
+    /// the AdaLN condition. The paper's release and 3D Diffuser Actor train with
+    /// `--num_history 3`: where the gripper has been says which button was pushed (they spring
+    /// back) and how high the last block was placed. Recovery detours are not part of the
+    /// history (see `keyframe_index`). 1 (the default): the current pose alone.
+    #[serde(default = "one")]
+    pub proprio_history: usize,
 }
+
+/// The most gripper poses `observation.proprio_history` may ask for.
+pub const MAX_PROPRIO_HISTORY: usize = 8;
 
 /// Keyframe indices at or past this share the last embedding row (`observation.keyframe_index`):
 /// RLBench's evaluation allows 25 keyframes.
@@ -286,6 +299,13 @@ impl PolicyConfig {
                 "model.channels",
                 "a multiple of 6 (the 3D positional encoding uses sin and cos per axis)",
                 self.model.channels.to_string(),
+            );
+        }
+        if !(1..=MAX_PROPRIO_HISTORY).contains(&o.proprio_history) {
+            return bad(
+                "observation.proprio_history",
+                &format!("1 (the current gripper pose alone) to {MAX_PROPRIO_HISTORY}"),
+                o.proprio_history.to_string(),
             );
         }
         for (i, name) in o.cameras.iter().enumerate() {

@@ -8,7 +8,7 @@ use crate::policy::config::{MAX_KEYFRAME_INDEX, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::network::model::{PrefixInputs, SuffixInputs};
 use crate::policy::network::text_encoder::{TEXT_HIDDEN_SIZE, TextEncoder};
-use crate::policy::scene::observation::{ACTION_DIMS, Observation, SceneCloud, lift_scene, proprio_features};
+use crate::policy::scene::observation::{ACTION_DIMS, Observation, SceneCloud, lift_scene, proprio_history_features};
 use crate::policy::scene::radius_schedule::{RadiusSchedule, select_geometric_tokens_cached};
 use crate::policy::scene::token_order::sort_far_to_near;
 
@@ -20,7 +20,9 @@ pub struct PreparedObservation {
     pub images: Vec<u8>,
     pub cameras: usize,
     pub cloud: SceneCloud,
-    pub proprio: [f32; 10],
+    /// The current gripper pose's features, then those of the `observation.proprio_history - 1`
+    /// poses before it.
+    pub proprio: Vec<[f32; 10]>,
     /// [Lt, 384] instruction token features, zero-padded or truncated to Lt.
     pub language: Tensor,
     /// The instruction's sentence embedding (384, L2-normalised mean of the token features).
@@ -68,7 +70,7 @@ pub fn prepare(
         }
     }
     let cloud = lift_scene(observation, o.feature_stride, &o.workspace, o.semantic_tokens, o.geometric_tokens)?;
-    let proprio = proprio_features(&observation.proprio, &o.workspace)?;
+    let proprio = proprio_history_features(observation, o.proprio_history, &o.workspace)?;
     let features = text.encode(&observation.instruction)?;
     let tokens = features.tokens.to_dtype(DType::F32)?;
     let t = tokens.dim(0)?.min(o.language_tokens);
@@ -109,6 +111,7 @@ fn select_cameras(observation: &Observation, names: &[String]) -> Result<Observa
         proprio: observation.proprio,
         instruction: observation.instruction.clone(),
         keyframe: observation.keyframe,
+        history: observation.history.clone(),
     })
 }
 
@@ -129,7 +132,8 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
     let mut images = Vec::with_capacity(b * cams * 3 * size * size);
     let mut cells = Vec::with_capacity(b * n1);
     let mut xyz = Vec::with_capacity(b * n1 * 3);
-    let mut proprio = Vec::with_capacity(b * 10);
+    let poses = first.proprio.len();
+    let mut proprio = Vec::with_capacity(b * 10 * poses);
     let mut language = Vec::with_capacity(b);
     let mut instruction = Vec::with_capacity(b * TEXT_HIDDEN_SIZE);
     let mut keyframe = Vec::with_capacity(b);
@@ -146,11 +150,16 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
             cells.push((i * cells_per_sample + s.cloud.cells[k]) as u32);
             xyz.extend(shifted(s.cloud.points_norm[k], aug.shift));
         }
-        let mut p = s.proprio;
-        for (p, shift) in p.iter_mut().zip(aug.shift) {
-            *p += shift;
+        if s.proprio.len() != poses {
+            return Err(PolicyError::Invalid("every sample of a batch needs the same gripper poses".into()));
         }
-        proprio.extend(p);
+        for pose in &s.proprio {
+            let mut p = *pose;
+            for (p, shift) in p.iter_mut().zip(aug.shift) {
+                *p += shift;
+            }
+            proprio.extend(p);
+        }
         language.push(s.language.clone());
         instruction.extend_from_slice(&s.instruction);
         keyframe.push(s.keyframe);
@@ -161,7 +170,7 @@ pub fn prefix_inputs(config: &PolicyConfig, samples: &[(&PreparedObservation, Au
         language: Tensor::stack(&language, 0)?,
         semantic_cells: Tensor::from_vec(cells, b * n1, device)?,
         semantic_xyz: Tensor::from_vec(xyz, (b, n1, 3), device)?,
-        proprio: Tensor::from_vec(proprio, (b, 10), device)?,
+        proprio: Tensor::from_vec(proprio, (b, 10 * poses), device)?,
         instruction: Tensor::from_vec(instruction, (b, TEXT_HIDDEN_SIZE), device)?,
         keyframe: Tensor::from_vec(keyframe, b, device)?,
     })

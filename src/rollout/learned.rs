@@ -20,11 +20,19 @@ pub struct FlowRamActor {
     pub options: SamplingOptions,
     /// Wall-clock milliseconds of each prediction, observation to keyframe.
     pub inference_ms: Vec<f64>,
+    /// The proprioception of the episode's observations so far, most recent first (the policy's
+    /// `observation.proprio_history`); an episode's keyframe 0 starts it afresh.
+    history: Vec<[f32; 8]>,
 }
 
 impl FlowRamActor {
     pub fn new(policy: Policy, options: SamplingOptions) -> Self {
-        Self { policy, options, inference_ms: Vec::new() }
+        Self { policy, options, inference_ms: Vec::new(), history: Vec::new() }
+    }
+
+    /// The proprioception of the current episode's observations so far, most recent first.
+    pub fn history(&self) -> &[[f32; 8]] {
+        &self.history
     }
 }
 
@@ -35,7 +43,12 @@ impl KeyframePolicy for FlowRamActor {
         k: usize,
         observation: &KeyframeObservation,
     ) -> Result<Keyframe, RolloutError> {
-        let observation = policy_observation(instruction, k, observation)?;
+        if k == 0 {
+            self.history.clear();
+        }
+        let observation = policy_observation(instruction, k, observation, &self.history)?;
+        self.history.insert(0, observation.proprio);
+        self.history.truncate(crate::policy::config::MAX_PROPRIO_HISTORY);
         let options = SamplingOptions { seed: self.options.seed + k as u64, ..self.options };
         let start = Instant::now();
         let pose = self.policy.predict_keyframe(&observation, &options)?;
@@ -49,11 +62,13 @@ impl KeyframePolicy for FlowRamActor {
 }
 
 /// The policy's view of a keyframe observation (square frames of one size, in the observer's
-/// camera order) taken after `keyframe` keyframes of the episode.
+/// camera order) taken after `keyframe` keyframes of the episode, whose earlier observations'
+/// proprioception was `history` (most recent first).
 pub fn policy_observation(
     instruction: &str,
     keyframe: usize,
     observation: &KeyframeObservation,
+    history: &[[f32; 8]],
 ) -> Result<Observation, RolloutError> {
     let first = observation.frames.first().ok_or(RolloutError::NoCameras)?;
     let size = first.intrinsics.width;
@@ -77,5 +92,12 @@ pub fn policy_observation(
             camera_to_world: std::array::from_fn(|r| std::array::from_fn(|c| e[(r, c)] as f32)),
         });
     }
-    Ok(Observation { size, cameras, proprio: observation.proprio, instruction: instruction.to_string(), keyframe })
+    Ok(Observation {
+        size,
+        cameras,
+        proprio: observation.proprio,
+        instruction: instruction.to_string(),
+        keyframe,
+        history: history.to_vec(),
+    })
 }

@@ -54,7 +54,8 @@ use crate::policy::network::mamba::{Conditioning, MambaConfig, MambaStack, Stack
 use crate::policy::network::text_encoder::TEXT_HIDDEN_SIZE;
 use crate::policy::scene::observation::ACTION_DIMS;
 
-/// Proprioception features: normalised position, 6D rotation, gripper open.
+/// Proprioception features of one gripper pose: normalised position, 6D rotation, gripper open
+/// (`observation.proprio_history` poses of them feed the proprioception MLP).
 pub const PROPRIO_DIMS: usize = 10;
 
 const LANGUAGE: usize = 0;
@@ -90,7 +91,7 @@ pub struct PrefixInputs {
     pub semantic_cells: Tensor,
     /// [B, N1, 3] normalised positions.
     pub semantic_xyz: Tensor,
-    /// [B, 10] proprioception features.
+    /// [B, 10 x observation.proprio_history] proprioception features, the current pose first.
     pub proprio: Tensor,
     /// [B, 384] the instruction's sentence embedding (for `model.instruction_adaln`).
     pub instruction: Tensor,
@@ -383,7 +384,7 @@ impl FlowRam {
             language_proj: candle_nn::linear(TEXT_HIDDEN_SIZE, c, vb.pp("language_proj"))?,
             action_in: candle_nn::linear(ACTION_DIMS, c, vb.pp("action_in"))?,
             token_types: vb.get_with_hints((4, c), "token_types", candle_nn::Init::Randn { mean: 0.0, stdev: 0.02 })?,
-            proprio_mlp: Mlp::new(PROPRIO_DIMS, c, c, vb.pp("proprio_mlp"))?,
+            proprio_mlp: Mlp::new(PROPRIO_DIMS * config.observation.proprio_history, c, c, vb.pp("proprio_mlp"))?,
             keyframe_embedding: if config.observation.keyframe_index {
                 Some(vb.get_with_hints(
                     (MAX_KEYFRAME_INDEX + 1, c),

@@ -46,6 +46,9 @@ pub struct Observation {
     /// Keyframes of the episode executed before this observation (0 at the start); read by
     /// policies with `observation.keyframe_index`.
     pub keyframe: usize,
+    /// Proprioception (as `proprio`) at the episode's earlier keyframe observations, most recent
+    /// first, recovery detours left out; read by policies with `observation.proprio_history` > 1.
+    pub history: Vec<[f32; 8]>,
 }
 
 /// A keyframe: what the policy predicts and what the control stack executes.
@@ -98,10 +101,29 @@ pub fn proprio_features(proprio: &[f32; 8], workspace: &WorkspaceBounds) -> Resu
     Ok(f)
 }
 
+/// The `poses` gripper poses of an observation as network input: [`proprio_features`] of the
+/// current pose, then of each earlier one in [`Observation::history`] (most recent first),
+/// repeating the oldest pose there is when the episode has fewer. `10 * poses` values.
+pub fn proprio_history_features(
+    observation: &Observation,
+    poses: usize,
+    workspace: &WorkspaceBounds,
+) -> Result<Vec<[f32; 10]>> {
+    let mut features = Vec::with_capacity(poses);
+    let mut last = &observation.proprio;
+    for i in 0..poses {
+        if i > 0 {
+            last = observation.history.get(i - 1).unwrap_or(last);
+        }
+        features.push(proprio_features(last, workspace)?);
+    }
+    Ok(features)
+}
+
 impl Observation {
     /// Keyframe `k` of a dataset episode (all its cameras, in the episode's order). Its
     /// [`Observation::keyframe`] counts the samples before `k` that are not recovery detours
-    /// ([`is_detour`]): a detour's observation stands in for the next one's state, off target,
+    /// ([`is_detour`]) and [`Observation::history`] holds their proprioception: a detour's observation stands in for the next one's state, off target,
     /// and closed loop the policy never makes it.
     pub fn from_episode(episode: &Episode, k: usize) -> Result<Self> {
         let keyframes = episode.keyframes();
@@ -133,7 +155,12 @@ impl Observation {
         }
         let proprio: [f32; 8] = std::array::from_fn(|i| episode.proprio[k * 8 + i]);
         let keyframe = keyframe_index(&episode.action, k);
-        Ok(Self { size: h, cameras, proprio, instruction: episode.instruction.clone(), keyframe })
+        let history = (0..k)
+            .rev()
+            .filter(|&i| !is_detour(&episode.action, i))
+            .map(|i| std::array::from_fn(|j| episode.proprio[i * 8 + j]))
+            .collect();
+        Ok(Self { size: h, cameras, proprio, instruction: episode.instruction.clone(), keyframe, history })
     }
 
     /// The recorded expert action at keyframe `k` of an episode.

@@ -2,10 +2,11 @@
 # The shipped five-task checkpoint (models/policy/pretrained/five-tasks, see its model card):
 # expert demonstrations with recovery samples (collect --perturb-sigma 0.03, every approach
 # keyframe), 300 per task for the four colour tasks and 100 for open_drawer,
-# models/policy/cpu.toml (8500 steps, about 50 min of training on a 2-core machine), evaluation
-# on 50 held-out seeds per task. See scripts/train-tasks.sh.
+# models/policy/five-tasks.toml (front + wrist cameras, 14,000 steps: 83 min of training on the
+# 2-core machine of session 22, whose cpu.toml step took 482 ms), evaluation on 50 held-out seeds
+# per task. See scripts/train-tasks.sh.
 export PERTURB_SIGMA="${PERTURB_SIGMA:-0.03}"
 export DEMOS_push_buttons="${DEMOS_push_buttons:-300}" DEMOS_slide_block="${DEMOS_slide_block:-300}"
 export DEMOS_close_jar="${DEMOS_close_jar:-300}" DEMOS_stack_blocks="${DEMOS_stack_blocks:-300}"
-exec "$(dirname "${BASH_SOURCE[0]}")/train-tasks.sh" five-tasks models/policy/cpu.toml \
+exec "$(dirname "${BASH_SOURCE[0]}")/train-tasks.sh" five-tasks models/policy/five-tasks.toml \
   open_drawer push_buttons slide_block close_jar stack_blocks

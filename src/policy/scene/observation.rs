@@ -123,8 +123,9 @@ pub fn proprio_history_features(
 impl Observation {
     /// Keyframe `k` of a dataset episode (all its cameras, in the episode's order). Its
     /// [`Observation::keyframe`] counts the samples before `k` that are not recovery detours
-    /// ([`is_detour`]) and [`Observation::history`] holds their proprioception: a detour's observation stands in for the next one's state, off target,
-    /// and closed loop the policy never makes it.
+    /// ([`is_detour`]) and [`Observation::history`] holds their proprioception: a detour's
+    /// observation stands in for the next one's state, off target, and closed loop the policy
+    /// never makes it.
     pub fn from_episode(episode: &Episode, k: usize) -> Result<Self> {
         let keyframes = episode.keyframes();
         if k >= keyframes {

@@ -4,7 +4,7 @@ use std::sync::OnceLock;
 
 use flowram::data::Episode;
 use flowram::policy::PolicyError;
-use flowram::policy::config::{InstructionPooling, PolicyConfig};
+use flowram::policy::config::{Consensus, InstructionPooling, PolicyConfig};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
@@ -88,8 +88,12 @@ fn overfits_a_handful_of_keyframes() {
     for k in 0..keyframes {
         let observation = Observation::from_episode(&episode, k).unwrap();
         let target = Observation::episode_action(&episode, k);
-        let predicted =
-            policy.predict(&observation, &SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0 }).unwrap()[0];
+        let predicted = policy
+            .predict(
+                &observation,
+                &SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0, consensus: Consensus::Medoid },
+            )
+            .unwrap()[0];
         let (p, r) = predicted.error_to(&target);
         assert!(p < 0.01 && r < 5f32.to_radians(), "keyframe {k}: {:.1} mm, {:.1} deg off", p * 1e3, r.to_degrees());
         assert_eq!(predicted.gripper_open, target.gripper_open, "keyframe {k}");
@@ -107,7 +111,7 @@ fn checkpoint_round_trip_and_truncation() {
     let mut text = text();
     train(run.path(), Some(&config), &mut data, &mut text, false, None, &mut Quiet).unwrap();
     let observation = Observation::from_episode(&episode, 1).unwrap();
-    let options = SamplingOptions { steps: 4, samples: 2, drs: true, seed: 7 };
+    let options = SamplingOptions { steps: 4, samples: 2, drs: true, seed: 7, consensus: Consensus::Medoid };
     let a = Policy::load(run.path(), text).unwrap().predict_once(&observation, &options);
     let b = Policy::load(run.path(), self::text()).unwrap().predict_once(&observation, &options);
     assert_eq!(a, b, "same checkpoint and noise seed, same prediction");
@@ -473,6 +477,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("model", "relational_pointer"),
         ("flow", "pointer_weight"),
         ("flow", "pointer_sigma"),
+        ("flow", "consensus"),
         ("observation", "proprio_history"),
     ] {
         json[section].as_object_mut().unwrap().remove(key);
@@ -485,7 +490,15 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert!(!config.model.relational_pointer);
     assert_eq!((config.flow.pointer_weight, config.flow.pointer_sigma), (0.0, 0.02));
     assert_eq!(config.observation.proprio_history, 1);
+    assert_eq!(config.flow.consensus, Consensus::Medoid);
     config.validate().unwrap();
+    // The consensus rule is one of two names; another is refused with the field and the choices.
+    let mut json = serde_json::to_value(tiny_config()).unwrap();
+    json["flow"]["consensus"] = "mode".into();
+    assert_eq!(serde_json::from_value::<PolicyConfig>(json.clone()).unwrap().flow.consensus, Consensus::Mode);
+    json["flow"]["consensus"] = "mean".into();
+    let message = serde_json::from_value::<PolicyConfig>(json).unwrap_err().to_string();
+    assert!(message.contains("mean") && message.contains("medoid") && message.contains("mode"), "{message}");
 }
 
 #[test]
@@ -534,7 +547,12 @@ fn a_policy_sees_only_the_cameras_its_config_names() {
     let side = 3 * 64 * 64;
     let rgb = &observation.cameras[1].rgb;
     assert_eq!(prepared.images[..side / 3], rgb.iter().step_by(3).copied().collect::<Vec<u8>>()[..]);
-    policy.predict(&observation, &SamplingOptions { steps: 2, samples: 1, drs: true, seed: 0 }).unwrap();
+    policy
+        .predict(
+            &observation,
+            &SamplingOptions { steps: 2, samples: 1, drs: true, seed: 0, consensus: Consensus::Medoid },
+        )
+        .unwrap();
     // A camera the observation does not have is named, with what to do.
     config.observation.cameras = vec!["overhead".into()];
     let mut policy = Policy::random(&config, text()).unwrap();

@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Args;
 use flowram::data::Episode;
-use flowram::policy::config::PolicyConfig;
+use flowram::policy::config::{Consensus, PolicyConfig};
 use flowram::policy::inference::{Policy, SampleProfile, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::runtime::in_pool;
@@ -162,7 +162,10 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
             let mut v = Vec::new();
             for r in 0..args.repeats {
                 let t0 = Instant::now();
-                policy.predict(&observation, &SamplingOptions { steps, samples: 1, drs, seed: r as u64 })?;
+                policy.predict(
+                    &observation,
+                    &SamplingOptions { steps, samples: 1, drs, seed: r as u64, consensus: Consensus::Medoid },
+                )?;
                 v.push(t0.elapsed().as_secs_f64() * 1e3);
             }
             Ok(median(&v))
@@ -179,7 +182,7 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         policy.sample_profiled(
             &prepared,
             &encoded,
-            &SamplingOptions { steps: 8, samples: 1, drs: true, seed: r as u64 },
+            &SamplingOptions { steps: 8, samples: 1, drs: true, seed: r as u64, consensus: Consensus::Medoid },
             &mut profile,
         )?;
         profiles.push(profile);
@@ -283,6 +286,9 @@ pub struct HeldOutArgs {
     /// flow.consensus_samples).
     #[arg(long, value_parser = super::at_least_one)]
     samples: Option<usize>,
+    /// Which sample is scored: medoid or mode (default: the config's flow.consensus).
+    #[arg(long, value_parser = super::consensus_rule)]
+    consensus: Option<Consensus>,
     #[arg(long)]
     json: bool,
 }
@@ -295,13 +301,19 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     let train_set = load_training_data(&args.train_data)?;
     let held_out = load_training_data(&args.data)?;
     let samples = args.samples.unwrap_or(policy.config().flow.consensus_samples);
-    let report = heldout_errors(&mut policy, &train_set, &held_out, steps, samples, &mut TaskBar::new("keyframes"))?;
+    let consensus = args.consensus.unwrap_or(policy.config().flow.consensus);
+    let report =
+        heldout_errors(&mut policy, &train_set, &held_out, steps, samples, consensus, &mut TaskBar::new("keyframes"))?;
     if args.json {
         return super::print_json(&report);
     }
     println!(
-        "{} held-out keyframes of {} episodes, {} Euler steps, consensus of {} samples:",
-        report.keyframes, report.episodes, steps, samples
+        "{} held-out keyframes of {} episodes, {} Euler steps, consensus ({}) of {} samples:",
+        report.keyframes,
+        report.episodes,
+        steps,
+        consensus.name(),
+        samples
     );
     let line = |name: &str, e: &Errors| {
         println!(

@@ -86,8 +86,13 @@ impl Shuttle {
         if let Some((policy, observation)) = self.policy.as_mut() {
             let n = self.inferences.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
             let flow = &policy.config().flow;
-            let options =
-                SamplingOptions { steps: flow.sampling_steps, samples: flow.consensus_samples, drs: true, seed: n };
+            let options = SamplingOptions {
+                steps: flow.sampling_steps,
+                samples: flow.consensus_samples,
+                drs: true,
+                seed: n,
+                consensus: flow.consensus,
+            };
             if in_pool(|| policy.predict(observation, &options)).is_err() {
                 self.errors += 1;
             }

@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
+use flowram::policy::config::Consensus;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
@@ -22,6 +23,10 @@ pub struct LearnedArgs {
     /// checkpoint's flow.consensus_samples).
     #[arg(long, value_parser = super::at_least_one)]
     pub samples: Option<usize>,
+    /// Which sample is executed: medoid (least summed distance to the others) or mode (most
+    /// others within 2 cm) (default: the checkpoint's flow.consensus).
+    #[arg(long, value_parser = super::consensus_rule)]
+    pub consensus: Option<Consensus>,
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]
     pub no_drs: bool,
@@ -64,6 +69,7 @@ impl LearnedArgs {
             samples: self.samples.unwrap_or(policy.config().flow.consensus_samples),
             drs: !self.no_drs,
             seed: 0,
+            consensus: self.consensus.unwrap_or(policy.config().flow.consensus),
         };
         Ok(FlowRamActor::new(policy, options))
     }

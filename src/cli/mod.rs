@@ -14,6 +14,7 @@ mod tune;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
+use flowram::policy::config::Consensus;
 
 #[derive(Debug, Parser)]
 #[command(
@@ -118,6 +119,15 @@ fn print_json(value: &impl serde::Serialize) -> anyhow::Result<()> {
 
 /// clap parser for counts that must be at least 1 (`--samples`, `--steps`): 0 is refused at the
 /// command line, with what was expected, instead of deep inside the sampler.
+/// `--consensus`: which of several keyframe samples is executed.
+fn consensus_rule(text: &str) -> Result<Consensus, String> {
+    match text {
+        "medoid" => Ok(Consensus::Medoid),
+        "mode" => Ok(Consensus::Mode),
+        _ => Err(format!("expected `medoid` or `mode`, got `{text}`")),
+    }
+}
+
 fn at_least_one(text: &str) -> Result<usize, String> {
     match text.parse::<usize>() {
         Ok(0) => Err("expected a whole number of at least 1, got 0".into()),

@@ -137,7 +137,13 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
     let recorded = Observation::episode_action(&episode, args.keyframe);
     let steps = args.steps.unwrap_or(policy.config().flow.sampling_steps);
     let started = Instant::now();
-    let options = SamplingOptions { steps, samples: args.samples, drs: !args.no_drs, seed: args.seed };
+    let options = SamplingOptions {
+        steps,
+        samples: args.samples,
+        drs: !args.no_drs,
+        seed: args.seed,
+        consensus: policy.config().flow.consensus,
+    };
     let keyframes = policy.predict(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();
     let predictions: Vec<Prediction> = keyframes

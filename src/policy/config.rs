@@ -166,6 +166,12 @@ pub struct FlowConfig {
     /// ([`crate::policy::inference::consensus`]). 1 (the paper): the single sample.
     #[serde(default = "one")]
     pub consensus_samples: usize,
+    /// Which of those samples is executed: `"medoid"` (the sample with the least summed distance
+    /// to the others) or `"mode"` (the sample with the most others within
+    /// [`crate::policy::inference::MODE_RADIUS`], the medoid among equals). See
+    /// [`crate::policy::inference::consensus`].
+    #[serde(default)]
+    pub consensus: Consensus,
     /// Loss = cfm_weight * velocity MSE + open_weight * gripper BCE (supplementary: 100, 10).
     pub cfm_weight: f64,
     pub open_weight: f64,
@@ -201,6 +207,29 @@ pub struct FlowConfig {
 
 fn pointer_sigma() -> f64 {
     0.02
+}
+
+/// How the executed keyframe is chosen among several samples of one observation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Consensus {
+    /// The sample with the least summed distance to the others (arm C8).
+    #[default]
+    Medoid,
+    /// The sample in the densest cluster: the most others within
+    /// [`crate::policy::inference::MODE_RADIUS`], the medoid among equals. Where the samples
+    /// split between several objects the medoid leans to the one nearest the middle of them all;
+    /// the mode goes with the most samples.
+    Mode,
+}
+
+impl Consensus {
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Medoid => "medoid",
+            Self::Mode => "mode",
+        }
+    }
 }
 
 /// Training.

@@ -13,7 +13,7 @@ use rand::SeedableRng;
 use crate::policy::checkpoint::format::{CONFIG_FILE, EMA_FILE, read_checkpoint_config, verify_checkpoint_files};
 use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::checkpoint::weights::load_model_weights;
-use crate::policy::config::PolicyConfig;
+use crate::policy::config::{Consensus, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{euler_sample, sample_source_noise};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
@@ -34,6 +34,8 @@ pub struct SamplingOptions {
     pub drs: bool,
     /// Seed of the source noise a0.
     pub seed: u64,
+    /// Which sample is executed ([`consensus`]).
+    pub consensus: Consensus,
 }
 
 impl SamplingOptions {
@@ -193,7 +195,7 @@ impl Policy {
     /// sample, that sample).
     pub fn predict_keyframe(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<KeyframePose> {
         let poses = self.predict(observation, options)?;
-        consensus(&poses).ok_or_else(|| PolicyError::Invalid("sampling returned no keyframe".into()))
+        consensus(&poses, options.consensus).ok_or_else(|| PolicyError::Invalid("sampling returned no keyframe".into()))
     }
 
     /// Observation in, keyframes out.
@@ -206,15 +208,24 @@ impl Policy {
     }
 }
 
-/// The consensus of several samples of one observation's keyframe: the medoid of their positions
-/// (the sample with the least summed distance to the others), whole: its rotation and gripper
-/// come with it. Flow matching samples every mode of the demonstrations (the left or the right
-/// side of the block, one button or the next); a single sample lands on a minority mode as
-/// often as that mode's share, the medoid of several lands on the majority's. It is a sample the
-/// network drew, never an average of two modes. Samples with a non-finite position take no part
-/// (if all have one, the first is returned, for the caller's checks to reject). `None` for no
-/// samples.
-pub fn consensus(poses: &[KeyframePose]) -> Option<KeyframePose> {
+/// Metres: samples closer than this count as one mode in [`Consensus::Mode`] (half a 4 cm block,
+/// the pointer's `pointer_sigma`).
+pub const MODE_RADIUS: f64 = 0.02;
+
+/// The consensus of several samples of one observation's keyframe, whole: its rotation and
+/// gripper come with it, never an average of two modes. Flow matching samples every mode of the
+/// demonstrations (the left or the right side of the block, one button or the next, any of four
+/// blocks of the named colour); a single sample lands on a minority mode as often as that mode's
+/// share, a consensus of several on the majority's.
+/// - [`Consensus::Medoid`]: the sample with the least summed distance to the others. With two
+///   modes it is the majority's; with many, spread over the table, it leans to the sample
+///   nearest the middle of them all, which need not be the most sampled.
+/// - [`Consensus::Mode`]: the sample with the most others within [`MODE_RADIUS`], the medoid
+///   among equals (so the medoid whenever no two samples are that close).
+///
+/// Samples with a non-finite position take no part (if all have one, the first is returned, for
+/// the caller's checks to reject). `None` for no samples.
+pub fn consensus(poses: &[KeyframePose], rule: Consensus) -> Option<KeyframePose> {
     let distance = |a: &KeyframePose, b: &KeyframePose| {
         (0..3).map(|i| (f64::from(a.position[i]) - f64::from(b.position[i])).powi(2)).sum::<f64>().sqrt()
     };
@@ -222,13 +233,22 @@ pub fn consensus(poses: &[KeyframePose]) -> Option<KeyframePose> {
     if finite.is_empty() {
         return poses.first().copied();
     }
+    // (neighbours within the radius, summed distance): the most neighbours, then the least sum
+    let score = |p: &KeyframePose| {
+        let distances = finite.iter().map(|q| distance(p, q));
+        let neighbours = match rule {
+            Consensus::Medoid => 0,
+            Consensus::Mode => distances.clone().filter(|&d| d < MODE_RADIUS).count(),
+        };
+        (neighbours, distances.sum::<f64>())
+    };
     finite
         .iter()
-        .map(|&p| (p, finite.iter().map(|q| distance(p, q)).sum::<f64>()))
+        .map(|&p| (p, score(p)))
         // the first of equals: with one sample, or identical samples, the first
-        .fold(None, |best: Option<(&KeyframePose, f64)>, (p, d)| match best {
-            Some((_, bd)) if bd <= d => best,
-            _ => Some((p, d)),
+        .fold(None, |best: Option<(&KeyframePose, (usize, f64))>, (p, (n, d))| match best {
+            Some((_, (bn, bd))) if bn > n || (bn == n && bd <= d) => best,
+            _ => Some((p, (n, d))),
         })
         .map(|(p, _)| *p)
 }
@@ -240,7 +260,7 @@ mod tests {
     #[test]
     fn drs_is_the_configured_dynamic_schedule_unless_switched_off() {
         let dynamic = RadiusSchedule::default();
-        let on = SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0 };
+        let on = SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0, consensus: Consensus::Medoid };
         let off = SamplingOptions { drs: false, ..on };
         assert_eq!(on.schedule(dynamic), dynamic);
         assert_eq!(off.schedule(dynamic), RadiusSchedule::Global);
@@ -260,15 +280,43 @@ mod tests {
         // Two samples near x = 0.3 (one closed), one at x = -0.3: the medoid is the middle one of
         // the majority, whole, not the mean x = 0.1 between the modes.
         let poses = [at(-0.3, true), at(0.31, false), at(0.30, true), at(0.32, true)];
-        let c = consensus(&poses).unwrap();
+        let c = consensus(&poses, Consensus::Medoid).unwrap();
         assert_eq!(c.position, [0.31, 0.0, 0.2]);
         assert!(!c.gripper_open, "the medoid's own gripper comes with it");
-        assert_eq!(consensus(&poses[..1]).unwrap(), poses[0]);
-        assert_eq!(consensus(&[at(0.1, true), at(0.1, false)]).unwrap(), at(0.1, true));
-        assert!(consensus(&[]).is_none());
+        assert_eq!(consensus(&poses[..1], Consensus::Medoid).unwrap(), poses[0]);
+        assert_eq!(consensus(&[at(0.1, true), at(0.1, false)], Consensus::Medoid).unwrap(), at(0.1, true));
+        for rule in [Consensus::Medoid, Consensus::Mode] {
+            assert!(consensus(&[], rule).is_none());
+        }
         // A non-finite sample takes no part; all non-finite: the first, for the caller to reject.
         let nan = at(f32::NAN, true);
-        assert_eq!(consensus(&[at(0.2, true), nan, at(0.21, false), at(0.5, true)]).unwrap(), at(0.21, false));
-        assert!(consensus(&[nan, nan]).unwrap().position[0].is_nan());
+        assert_eq!(
+            consensus(&[at(0.2, true), nan, at(0.21, false), at(0.5, true)], Consensus::Medoid).unwrap(),
+            at(0.21, false)
+        );
+        assert!(consensus(&[nan, nan], Consensus::Mode).unwrap().position[0].is_nan());
+    }
+
+    #[test]
+    fn the_mode_goes_with_the_most_samples_where_the_medoid_leans_to_the_middle() {
+        // Four objects on a line, 15 cm apart: three samples on the first, one on the second,
+        // two on the third, one on the fourth. The medoid is the lone sample on the second (in
+        // the middle of them all); the mode is one of the three, the medoid among them (the one
+        // nearest the rest), whole.
+        let poses = [
+            at(0.0, true),
+            at(0.004, true),
+            at(0.008, false),
+            at(0.15, true),
+            at(0.3, true),
+            at(0.31, true),
+            at(0.45, true),
+        ];
+        assert_eq!(consensus(&poses, Consensus::Medoid).unwrap(), at(0.15, true));
+        assert_eq!(consensus(&poses, Consensus::Mode).unwrap(), at(0.008, false));
+        // No two samples within the radius: the mode is the medoid.
+        let spread = [at(0.0, true), at(0.1, true), at(0.15, false), at(0.3, true)];
+        assert_eq!(consensus(&spread, Consensus::Mode), consensus(&spread, Consensus::Medoid));
+        assert_eq!(consensus(&poses[..1], Consensus::Mode).unwrap(), poses[0]);
     }
 }

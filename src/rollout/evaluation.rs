@@ -18,6 +18,7 @@ use crate::control::keyframe::Keyframe;
 use crate::data::{DataError, Episode};
 use crate::files::write_atomic;
 use crate::policy::checkpoint::format::weights_digest;
+use crate::policy::config::Consensus;
 use crate::policy::inference::{Policy, SamplingOptions};
 use crate::policy::scene::observation::{KeyframePose, Observation};
 use crate::policy::scene::rotation::{quaternion_from_6d, quaternion_to_6d};
@@ -147,6 +148,9 @@ pub struct SuccessRecord {
     pub steps: usize,
     #[serde(default = "one_sample")]
     pub samples: usize,
+    /// Which sample was executed (absent in records from before there was a choice: medoid).
+    #[serde(default)]
+    pub consensus: Consensus,
     pub drs: bool,
     pub cameras: Vec<String>,
     pub shard: Shard,
@@ -179,6 +183,7 @@ impl SuccessRecord {
             max_keyframes: options.max_keyframes,
             steps: actor.options.steps,
             samples: actor.options.samples,
+            consensus: actor.options.consensus,
             drs: actor.options.samples_with_drs(actor.policy.config().radius_schedule),
             cameras: options.cameras.clone(),
             shard: options.shard,
@@ -190,9 +195,18 @@ impl SuccessRecord {
     fn same_evaluation(&self, other: &Self) -> Result<(), String> {
         let fields = |r: &Self| {
             format!(
-                "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, drs {}, \
-                 cameras {:?}",
-                r.checkpoint_digest, r.tasks, r.episodes, r.seed, r.max_keyframes, r.steps, r.samples, r.drs, r.cameras
+                "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, consensus {}, \
+                 drs {}, cameras {:?}",
+                r.checkpoint_digest,
+                r.tasks,
+                r.episodes,
+                r.seed,
+                r.max_keyframes,
+                r.steps,
+                r.samples,
+                r.consensus.name(),
+                r.drs,
+                r.cameras
             )
         };
         let (a, b) = (fields(self), fields(other));
@@ -412,6 +426,7 @@ pub struct HeldOutReport {
     pub steps: usize,
     /// Keyframe samples per observation; the scored keyframe is their consensus.
     pub samples: usize,
+    pub consensus: Consensus,
     pub model: Errors,
     pub training_mean: Errors,
     pub task_mean: Errors,
@@ -608,6 +623,7 @@ pub fn heldout_errors(
     held_out: &TrainingData,
     steps: usize,
     samples: usize,
+    consensus: Consensus,
     progress: &mut dyn EvaluationProgress,
 ) -> Result<HeldOutReport, RolloutError> {
     let baseline = mean_keyframe(train.episodes().iter())?
@@ -635,7 +651,7 @@ pub fn heldout_errors(
             for k in 0..e.keyframes() {
                 let observation = Observation::from_episode(e, k)?;
                 let target = Observation::episode_action(e, k);
-                let options = SamplingOptions { steps, samples, drs: true, seed: k as u64 };
+                let options = SamplingOptions { steps, samples, drs: true, seed: k as u64, consensus };
                 let predicted = policy.predict_keyframe(&observation, &options)?;
                 let row = |p: &KeyframePose| KeyframeError::between(p, &target);
                 let model = row(&predicted);
@@ -695,6 +711,7 @@ pub fn heldout_errors(
         episodes: held_out.episodes().len(),
         steps,
         samples,
+        consensus,
         model: all.model,
         training_mean: all.training_mean,
         task_mean: all.task_mean,

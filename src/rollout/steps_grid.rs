@@ -6,7 +6,7 @@
 //! log2 axis.
 //!
 //! Every cell must be a whole, complete evaluation of the same tasks, seeds, keyframe limit,
-//! cameras and samples per observation, so the cells differ only in the checkpoint, the steps
+//! cameras, samples per observation and consensus rule, so the cells differ only in the checkpoint, the steps
 //! and DRS: the comparison is paired on seeds.
 use std::path::{Path, PathBuf};
 
@@ -65,12 +65,14 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 path.display()
             )));
         }
-        let setting =
-            |r: &SuccessRecord| (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), r.samples);
+        let setting = |r: &SuccessRecord| {
+            (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), r.samples, r.consensus)
+        };
         if setting(record) != setting(first) {
             return Err(grid_error(format!(
                 "{} and {} are not on the same episodes and sampling: tasks {:?}, seeds {}+{}, max keyframes {}, \
-                 cameras {:?}, samples {} against tasks {:?}, seeds {}+{}, max keyframes {}, cameras {:?}, samples {}",
+                 cameras {:?}, samples {} ({}) against tasks {:?}, seeds {}+{}, max keyframes {}, cameras {:?}, \
+                 samples {} ({})",
                 path.display(),
                 first_path.display(),
                 record.tasks,
@@ -79,12 +81,14 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 record.max_keyframes,
                 record.cameras,
                 record.samples,
+                record.consensus.name(),
                 first.tasks,
                 first.seed,
                 first.episodes,
                 first.max_keyframes,
                 first.cameras,
-                first.samples
+                first.samples,
+                first.consensus.name()
             )));
         }
         if let Some(twin) = cells.iter().find(|c| {
@@ -304,6 +308,7 @@ fn draw(cells: &[GridCell], path: &Path, width: u32, height: u32, text: bool) ->
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::policy::config::Consensus;
     use crate::rollout::evaluation::{RecordedOutcome, SUCCESS_FORMAT, SeedOutcome};
     use crate::rollout::shard::Shard;
 
@@ -341,6 +346,7 @@ mod tests {
             max_keyframes: 25,
             steps,
             samples: 8,
+            consensus: Consensus::Medoid,
             drs,
             cameras: vec!["front".into()],
             shard: Shard::WHOLE,
@@ -392,6 +398,9 @@ mod tests {
         let mut other_samples = record("runs/drs", 4, true, 100.0, |_, _| true);
         other_samples.samples = 1;
         assert!(message(vec![base(), entry("b.json", other_samples)]).contains("samples 1"));
+        let mut other_rule = record("runs/drs", 4, true, 100.0, |_, _| true);
+        other_rule.consensus = Consensus::Mode;
+        assert!(message(vec![base(), entry("b.json", other_rule)]).contains("samples 8 (mode)"));
         let twice = message(vec![base(), entry("b.json", record("runs/drs", 8, true, 50.0, |_, _| false))]);
         assert!(twice.contains("same cell") && twice.contains("a.json"), "{twice}");
         let mut incomplete = record("runs/drs", 4, true, 100.0, |_, _| true);

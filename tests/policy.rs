@@ -4,7 +4,7 @@ use std::sync::OnceLock;
 
 use flowram::data::Episode;
 use flowram::policy::PolicyError;
-use flowram::policy::config::{Consensus, InstructionPooling, PolicyConfig};
+use flowram::policy::config::{Consensus, InstructionPooling, PointerSharpening, PolicyConfig};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
@@ -91,7 +91,14 @@ fn overfits_a_handful_of_keyframes() {
         let predicted = policy
             .predict(
                 &observation,
-                &SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0, consensus: Consensus::Medoid },
+                &SamplingOptions {
+                    steps: 8,
+                    samples: 1,
+                    drs: true,
+                    seed: 0,
+                    consensus: Consensus::Medoid,
+                    sharpening: PointerSharpening::OFF,
+                },
             )
             .unwrap()[0];
         let (p, r) = predicted.error_to(&target);
@@ -111,7 +118,14 @@ fn checkpoint_round_trip_and_truncation() {
     let mut text = text();
     train(run.path(), Some(&config), &mut data, &mut text, false, None, &mut Quiet).unwrap();
     let observation = Observation::from_episode(&episode, 1).unwrap();
-    let options = SamplingOptions { steps: 4, samples: 2, drs: true, seed: 7, consensus: Consensus::Medoid };
+    let options = SamplingOptions {
+        steps: 4,
+        samples: 2,
+        drs: true,
+        seed: 7,
+        consensus: Consensus::Medoid,
+        sharpening: PointerSharpening::OFF,
+    };
     let a = Policy::load(run.path(), text).unwrap().predict_once(&observation, &options);
     let b = Policy::load(run.path(), self::text()).unwrap().predict_once(&observation, &options);
     assert_eq!(a, b, "same checkpoint and noise seed, same prediction");
@@ -478,6 +492,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("flow", "pointer_weight"),
         ("flow", "pointer_sigma"),
         ("flow", "consensus"),
+        ("flow", "pointer_sharpening"),
         ("observation", "proprio_history"),
     ] {
         json[section].as_object_mut().unwrap().remove(key);
@@ -491,6 +506,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!((config.flow.pointer_weight, config.flow.pointer_sigma), (0.0, 0.02));
     assert_eq!(config.observation.proprio_history, 1);
     assert_eq!(config.flow.consensus, Consensus::Medoid);
+    assert_eq!(config.flow.pointer_sharpening, PointerSharpening::OFF);
     config.validate().unwrap();
     // The consensus rule is one of two names; another is refused with the field and the choices.
     let mut json = serde_json::to_value(tiny_config()).unwrap();
@@ -550,7 +566,14 @@ fn a_policy_sees_only_the_cameras_its_config_names() {
     policy
         .predict(
             &observation,
-            &SamplingOptions { steps: 2, samples: 1, drs: true, seed: 0, consensus: Consensus::Medoid },
+            &SamplingOptions {
+                steps: 2,
+                samples: 1,
+                drs: true,
+                seed: 0,
+                consensus: Consensus::Medoid,
+                sharpening: PointerSharpening::OFF,
+            },
         )
         .unwrap();
     // A camera the observation does not have is named, with what to do.
@@ -773,4 +796,31 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
     // ... also through the embedding of each token's place alone ("the first colour word")
     let places = beyond_table(&config, true, false);
     assert!(places > 1e-2, "the tokens' places in the instruction did not reach the pooling ({places})");
+}
+
+#[test]
+fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
+    // A fresh model with the position pointer: its attention is spread over the scene, so
+    // dividing the scores by a small temperature moves the pointed position.
+    let config = tiny_config();
+    assert!(config.model.position_pointer);
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let observation = Observation::from_episode(demonstration(), 1).unwrap();
+    let mut predict = |sharpening: PointerSharpening| {
+        let options =
+            SamplingOptions { steps: 4, samples: 2, drs: true, seed: 3, consensus: Consensus::Medoid, sharpening };
+        policy.predict(&observation, &options).unwrap()
+    };
+    let trained = predict(PointerSharpening::OFF);
+    // No step before flow time 0; a temperature of 1 divides nothing.
+    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.0 }), trained);
+    assert_eq!(predict(PointerSharpening { temperature: 1.0, until: 1.0 }), trained);
+    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 0.5 }), trained);
+    // The config refuses a temperature that is not positive and a flow time outside [0, 1].
+    let mut bad = config.clone();
+    bad.flow.pointer_sharpening.temperature = 0.0;
+    let message = bad.validate().unwrap_err().to_string();
+    assert!(message.contains("flow.pointer_sharpening.temperature"), "{message}");
+    bad.flow.pointer_sharpening = PointerSharpening { temperature: 0.1, until: 1.5 };
+    assert!(bad.validate().unwrap_err().to_string().contains("flow.pointer_sharpening.until"));
 }

@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Args;
 use flowram::data::Episode;
-use flowram::policy::config::{Consensus, PolicyConfig};
+use flowram::policy::config::{Consensus, PointerSharpening, PolicyConfig};
 use flowram::policy::inference::{Policy, SampleProfile, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::runtime::in_pool;
@@ -164,7 +164,14 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
                 let t0 = Instant::now();
                 policy.predict(
                     &observation,
-                    &SamplingOptions { steps, samples: 1, drs, seed: r as u64, consensus: Consensus::Medoid },
+                    &SamplingOptions {
+                        steps,
+                        samples: 1,
+                        drs,
+                        seed: r as u64,
+                        consensus: Consensus::Medoid,
+                        sharpening: PointerSharpening::OFF,
+                    },
                 )?;
                 v.push(t0.elapsed().as_secs_f64() * 1e3);
             }
@@ -182,7 +189,14 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
         policy.sample_profiled(
             &prepared,
             &encoded,
-            &SamplingOptions { steps: 8, samples: 1, drs: true, seed: r as u64, consensus: Consensus::Medoid },
+            &SamplingOptions {
+                steps: 8,
+                samples: 1,
+                drs: true,
+                seed: r as u64,
+                consensus: Consensus::Medoid,
+                sharpening: PointerSharpening::OFF,
+            },
             &mut profile,
         )?;
         profiles.push(profile);
@@ -289,6 +303,10 @@ pub struct HeldOutArgs {
     /// Which sample is scored: medoid or mode (default: the config's flow.consensus).
     #[arg(long, value_parser = super::consensus_rule)]
     consensus: Option<Consensus>,
+    /// The position pointer's temperature over the first Euler steps (default: the config's
+    /// flow.pointer_sharpening.temperature; 1: as trained).
+    #[arg(long, value_parser = super::positive_number)]
+    pointer_temperature: Option<f64>,
     #[arg(long)]
     json: bool,
 }
@@ -302,8 +320,12 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     let held_out = load_training_data(&args.data)?;
     let samples = args.samples.unwrap_or(policy.config().flow.consensus_samples);
     let consensus = args.consensus.unwrap_or(policy.config().flow.consensus);
-    let report =
-        heldout_errors(&mut policy, &train_set, &held_out, steps, samples, consensus, &mut TaskBar::new("keyframes"))?;
+    let mut sharpening = policy.config().flow.pointer_sharpening;
+    if let Some(temperature) = args.pointer_temperature {
+        sharpening.temperature = temperature;
+    }
+    let options = SamplingOptions { steps, samples, drs: true, seed: 0, consensus, sharpening };
+    let report = heldout_errors(&mut policy, &train_set, &held_out, &options, &mut TaskBar::new("keyframes"))?;
     if args.json {
         return super::print_json(&report);
     }

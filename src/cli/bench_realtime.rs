@@ -92,6 +92,7 @@ impl Shuttle {
                 drs: true,
                 seed: n,
                 consensus: flow.consensus,
+                sharpening: flow.pointer_sharpening,
             };
             if in_pool(|| policy.predict(observation, &options)).is_err() {
                 self.errors += 1;

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use flowram::policy::config::Consensus;
+use flowram::policy::config::{Consensus, PointerSharpening};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
@@ -27,6 +27,11 @@ pub struct LearnedArgs {
     /// others within 2 cm) (default: the checkpoint's flow.consensus).
     #[arg(long, value_parser = super::consensus_rule)]
     pub consensus: Option<Consensus>,
+    /// The position pointer's temperature over the first Euler steps (those at flow time below
+    /// the checkpoint's flow.pointer_sharpening.until, 0.5 by default); 1: as trained (default:
+    /// the checkpoint's flow.pointer_sharpening.temperature).
+    #[arg(long, value_parser = super::positive_number)]
+    pub pointer_temperature: Option<f64>,
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]
     pub no_drs: bool,
@@ -70,6 +75,10 @@ impl LearnedArgs {
             drs: !self.no_drs,
             seed: 0,
             consensus: self.consensus.unwrap_or(policy.config().flow.consensus),
+            sharpening: match self.pointer_temperature {
+                Some(temperature) => PointerSharpening { temperature, ..policy.config().flow.pointer_sharpening },
+                None => policy.config().flow.pointer_sharpening,
+            },
         };
         Ok(FlowRamActor::new(policy, options))
     }

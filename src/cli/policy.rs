@@ -143,6 +143,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         drs: !args.no_drs,
         seed: args.seed,
         consensus: policy.config().flow.consensus,
+        sharpening: policy.config().flow.pointer_sharpening,
     };
     let keyframes = policy.predict(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();

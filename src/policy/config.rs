@@ -172,6 +172,13 @@ pub struct FlowConfig {
     /// [`crate::policy::inference::consensus`].
     #[serde(default)]
     pub consensus: Consensus,
+    /// Inference only: the position pointer's scores (`model.position_pointer`) are divided by
+    /// `temperature` at the Euler steps whose flow time is below `until`, so that the first
+    /// steps point at one object where the attention is split over several (four blocks of
+    /// the named colour) instead of at the mean of their positions, between them; the later
+    /// steps point as trained, for precision. `{ temperature = 1.0 }`: off (the default).
+    #[serde(default)]
+    pub pointer_sharpening: PointerSharpening,
     /// Loss = cfm_weight * velocity MSE + open_weight * gripper BCE (supplementary: 100, 10).
     pub cfm_weight: f64,
     pub open_weight: f64,
@@ -207,6 +214,37 @@ pub struct FlowConfig {
 
 fn pointer_sigma() -> f64 {
     0.02
+}
+
+/// `flow.pointer_sharpening`: the position pointer's temperature over the first Euler steps.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct PointerSharpening {
+    /// Divides the pointer's scores; 1: as trained, below 1: sharper.
+    pub temperature: f64,
+    /// Flow time: the steps at t < until are sharpened (0.5 of 8 steps: the first 4).
+    #[serde(default = "half")]
+    pub until: f64,
+}
+
+fn half() -> f64 {
+    0.5
+}
+
+impl Default for PointerSharpening {
+    fn default() -> Self {
+        Self::OFF
+    }
+}
+
+impl PointerSharpening {
+    /// As trained at every step.
+    pub const OFF: Self = Self { temperature: 1.0, until: 0.5 };
+
+    /// The pointer's temperature at flow time `t`.
+    pub fn temperature_at(&self, t: f32) -> f64 {
+        if f64::from(t) < self.until { self.temperature } else { 1.0 }
+    }
 }
 
 /// How the executed keyframe is chosen among several samples of one observation.
@@ -322,6 +360,13 @@ impl PolicyConfig {
             if v == 0 {
                 return bad(field, "positive", v.to_string());
             }
+        }
+        let sharpening = self.flow.pointer_sharpening;
+        if !(sharpening.temperature.is_finite() && sharpening.temperature > 0.0) {
+            return bad("flow.pointer_sharpening.temperature", "positive (1: off)", sharpening.temperature.to_string());
+        }
+        if !(0.0..=1.0).contains(&sharpening.until) {
+            return bad("flow.pointer_sharpening.until", "a flow time in [0, 1]", sharpening.until.to_string());
         }
         if !self.model.channels.is_multiple_of(6) {
             return bad(

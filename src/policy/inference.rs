@@ -13,7 +13,7 @@ use rand::SeedableRng;
 use crate::policy::checkpoint::format::{CONFIG_FILE, EMA_FILE, read_checkpoint_config, verify_checkpoint_files};
 use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::checkpoint::weights::load_model_weights;
-use crate::policy::config::{Consensus, PolicyConfig};
+use crate::policy::config::{Consensus, PointerSharpening, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{euler_sample, sample_source_noise};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
@@ -36,6 +36,8 @@ pub struct SamplingOptions {
     pub seed: u64,
     /// Which sample is executed ([`consensus`]).
     pub consensus: Consensus,
+    /// The position pointer's temperature over the first Euler steps.
+    pub sharpening: PointerSharpening,
 }
 
 impl SamplingOptions {
@@ -174,7 +176,7 @@ impl Policy {
             let t0 = Instant::now();
             let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
             let t1 = Instant::now();
-            let out = self.model.step(&encoded, &suffix)?;
+            let out = self.model.step_sharpened(&encoded, &suffix, options.sharpening.temperature_at(t))?;
             profile.selection_ms += (t1 - t0).as_secs_f64() * 1e3;
             profile.network_ms += t1.elapsed().as_secs_f64() * 1e3;
             open = Some(out.open_logit);
@@ -260,7 +262,14 @@ mod tests {
     #[test]
     fn drs_is_the_configured_dynamic_schedule_unless_switched_off() {
         let dynamic = RadiusSchedule::default();
-        let on = SamplingOptions { steps: 8, samples: 1, drs: true, seed: 0, consensus: Consensus::Medoid };
+        let on = SamplingOptions {
+            steps: 8,
+            samples: 1,
+            drs: true,
+            seed: 0,
+            consensus: Consensus::Medoid,
+            sharpening: PointerSharpening::OFF,
+        };
         let off = SamplingOptions { drs: false, ..on };
         assert_eq!(on.schedule(dynamic), dynamic);
         assert_eq!(off.schedule(dynamic), RadiusSchedule::Global);

@@ -151,6 +151,10 @@ pub struct SuccessRecord {
     /// Which sample was executed (absent in records from before there was a choice: medoid).
     #[serde(default)]
     pub consensus: Consensus,
+    /// The position pointer's temperature over the first Euler steps
+    /// (`flow.pointer_sharpening`; 1, as trained, when absent).
+    #[serde(default = "as_trained")]
+    pub pointer_temperature: f64,
     pub drs: bool,
     pub cameras: Vec<String>,
     pub shard: Shard,
@@ -159,6 +163,10 @@ pub struct SuccessRecord {
 
 fn one_sample() -> usize {
     1
+}
+
+fn as_trained() -> f64 {
+    1.0
 }
 
 impl SuccessRecord {
@@ -184,6 +192,7 @@ impl SuccessRecord {
             steps: actor.options.steps,
             samples: actor.options.samples,
             consensus: actor.options.consensus,
+            pointer_temperature: actor.options.sharpening.temperature,
             drs: actor.options.samples_with_drs(actor.policy.config().radius_schedule),
             cameras: options.cameras.clone(),
             shard: options.shard,
@@ -196,7 +205,7 @@ impl SuccessRecord {
         let fields = |r: &Self| {
             format!(
                 "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, consensus {}, \
-                 drs {}, cameras {:?}",
+                 pointer temperature {}, drs {}, cameras {:?}",
                 r.checkpoint_digest,
                 r.tasks,
                 r.episodes,
@@ -205,6 +214,7 @@ impl SuccessRecord {
                 r.steps,
                 r.samples,
                 r.consensus.name(),
+                r.pointer_temperature,
                 r.drs,
                 r.cameras
             )
@@ -427,6 +437,8 @@ pub struct HeldOutReport {
     /// Keyframe samples per observation; the scored keyframe is their consensus.
     pub samples: usize,
     pub consensus: Consensus,
+    /// `flow.pointer_sharpening.temperature` (1: as trained).
+    pub pointer_temperature: f64,
     pub model: Errors,
     pub training_mean: Errors,
     pub task_mean: Errors,
@@ -614,16 +626,14 @@ fn distance(a: &[f64; 3], b: &[f64; 3]) -> f64 {
     (0..3).map(|i| (a[i] - b[i]).powi(2)).sum::<f64>().sqrt()
 }
 
-/// Held-out keyframe errors of `policy` (`steps` Euler steps, DRS, noise seed = keyframe index,
-/// the consensus of `samples` samples) on every keyframe of `held_out`, against the mean keyframes
-/// of `train` (overall and per task).
+/// Held-out keyframe errors of `policy` (sampled with `options`, always with DRS, the noise
+/// seed the keyframe index) on every keyframe of `held_out`, against the mean keyframes of
+/// `train` (overall and per task).
 pub fn heldout_errors(
     policy: &mut Policy,
     train: &TrainingData,
     held_out: &TrainingData,
-    steps: usize,
-    samples: usize,
-    consensus: Consensus,
+    options: &SamplingOptions,
     progress: &mut dyn EvaluationProgress,
 ) -> Result<HeldOutReport, RolloutError> {
     let baseline = mean_keyframe(train.episodes().iter())?
@@ -651,7 +661,7 @@ pub fn heldout_errors(
             for k in 0..e.keyframes() {
                 let observation = Observation::from_episode(e, k)?;
                 let target = Observation::episode_action(e, k);
-                let options = SamplingOptions { steps, samples, drs: true, seed: k as u64, consensus };
+                let options = SamplingOptions { drs: true, seed: k as u64, ..*options };
                 let predicted = policy.predict_keyframe(&observation, &options)?;
                 let row = |p: &KeyframePose| KeyframeError::between(p, &target);
                 let model = row(&predicted);
@@ -709,9 +719,10 @@ pub fn heldout_errors(
     Ok(HeldOutReport {
         keyframes: all.keyframes,
         episodes: held_out.episodes().len(),
-        steps,
-        samples,
-        consensus,
+        steps: options.steps,
+        samples: options.samples,
+        consensus: options.consensus,
+        pointer_temperature: options.sharpening.temperature,
         model: all.model,
         training_mean: all.training_mean,
         task_mean: all.task_mean,

@@ -347,6 +347,7 @@ mod tests {
             steps,
             samples: 8,
             consensus: Consensus::Medoid,
+            pointer_temperature: 1.0,
             drs,
             cameras: vec!["front".into()],
             shard: Shard::WHOLE,

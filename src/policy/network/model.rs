@@ -304,18 +304,23 @@ impl PositionPointer {
 
     /// The pointed position [B, 3]: the softmax over the semantic and geometric tokens (keys
     /// against the action token's output `last` [B, C] plus the instruction) of their positions;
-    /// with the log attention [B, N] and the candidates' positions [B, N, 3].
+    /// with the log attention [B, N] and the candidates' positions [B, N, 3]. `temperature`
+    /// divides the scores (1: as trained; below 1 sharpens, `flow.pointer_sharpening`).
     fn point(
         &self,
         memory: &PointerMemory,
         geometric: &Tensor,
         geometric_xyz: &Tensor,
         last: &Tensor,
+        temperature: f64,
     ) -> Result<(Tensor, Tensor, Tensor)> {
         let keys = Tensor::cat(&[&memory.keys, &self.key.forward(geometric)?], 1)?;
         let xyz = Tensor::cat(&[&memory.xyz, geometric_xyz], 1)?;
         let q = self.query.forward(last)?.add(&memory.query)?.unsqueeze(1)?;
-        let scores = attention_scores(&q, &keys)?;
+        let mut scores = attention_scores(&q, &keys)?;
+        if temperature != 1.0 {
+            scores = scores.affine(1.0 / temperature, 0.0)?;
+        }
         let log_weights = candle_nn::ops::log_softmax(&scores, 2)?;
         let pointed = log_weights.exp()?.matmul(&xyz)?.squeeze(1)?;
         Ok((pointed, log_weights.squeeze(1)?, xyz))
@@ -602,18 +607,20 @@ impl FlowRam {
 
     /// The heads on the action token's output `last` [B, C]; with the position pointer, `pointer`
     /// holds its memory and the suffix's geometric tokens [B, N2, C] and positions [B, N2, 3];
-    /// `goal` [B, 3] is the instruction pointer's pointed position (`model.relational_pointer`).
+    /// `goal` [B, 3] is the instruction pointer's pointed position (`model.relational_pointer`);
+    /// `pointer_temperature` divides the position pointer's scores (1: as trained).
     fn heads(
         &self,
         last: &Tensor,
         pointer: Option<(&PointerMemory, &Tensor, &Tensor)>,
         goal: Option<&Tensor>,
+        pointer_temperature: f64,
     ) -> Result<Velocity> {
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
         match (&self.position_pointer, pointer) {
             (Some(p), Some((memory, geometric, xyz))) => {
-                let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last)?;
+                let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last, pointer_temperature)?;
                 position = position.add(&pointed)?;
                 if let Some(relation) = &self.relation {
                     let goal = goal.ok_or_else(|| {
@@ -672,7 +679,7 @@ impl FlowRam {
         let x = Tensor::cat(&[&p_tokens, &s_tokens], 1)?;
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
         let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer, goal.as_ref())?;
+        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer, goal.as_ref(), 1.0)?;
         velocity.goal = goal_attention;
         Ok(velocity)
     }
@@ -690,12 +697,23 @@ impl FlowRam {
 
     /// Inference: one flow step from the cached prefix.
     pub fn step(&self, encoded: &EncodedObservation, suffix: &SuffixInputs) -> Result<Velocity> {
+        self.step_sharpened(encoded, suffix, 1.0)
+    }
+
+    /// [`Self::step`] with the position pointer's scores divided by `pointer_temperature`
+    /// (`flow.pointer_sharpening`; no effect without `model.position_pointer`).
+    pub fn step_sharpened(
+        &self,
+        encoded: &EncodedObservation,
+        suffix: &SuffixInputs,
+        pointer_temperature: f64,
+    ) -> Result<Velocity> {
         let (tokens, condition) =
             self.suffix_tokens(&encoded.features, &encoded.condition, encoded.goal.as_ref(), suffix)?;
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        self.heads(&last, pointer, encoded.goal.as_ref())
+        self.heads(&last, pointer, encoded.goal.as_ref(), pointer_temperature)
     }
 }
 

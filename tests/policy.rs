@@ -815,7 +815,13 @@ fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     // No step before flow time 0; a temperature of 1 divides nothing.
     assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.0 }), trained);
     assert_eq!(predict(PointerSharpening { temperature: 1.0, until: 1.0 }), trained);
-    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 0.5 }), trained);
+    let half = predict(PointerSharpening { temperature: 0.05, until: 0.5 });
+    assert_ne!(half, trained);
+    // 4 steps at t = 0, 0.25, 0.5, 0.75: until 0.3 sharpens the same two steps as 0.5, 0.51 and
+    // 1.0 sharpen more (t < until, strictly).
+    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.3 }), half);
+    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 0.51 }), half);
+    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 1.0 }), half);
     // The config refuses a temperature that is not positive and a flow time outside [0, 1].
     let mut bad = config.clone();
     bad.flow.pointer_sharpening.temperature = 0.0;

@@ -330,12 +330,13 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
         return super::print_json(&report);
     }
     println!(
-        "{} held-out keyframes of {} episodes, {} Euler steps, consensus ({}) of {} samples:",
+        "{} held-out keyframes of {} episodes, {} Euler steps, consensus ({}) of {} samples, pointer temperature {}:",
         report.keyframes,
         report.episodes,
         steps,
         consensus.name(),
-        samples
+        samples,
+        report.pointer_temperature
     );
     let line = |name: &str, e: &Errors| {
         println!(
@@ -446,6 +447,21 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
         b.seed,
         b.episodes
     );
+    if !args.json {
+        // Arms of one checkpoint differ only here (MODE and SHARP in docs/experiments.md).
+        let sampling = |r: &SuccessRecord| {
+            format!(
+                "weights {}, {} steps, {} samples ({}), pointer temperature {}, DRS {}",
+                r.checkpoint_digest,
+                r.steps,
+                r.samples,
+                r.consensus.name(),
+                r.pointer_temperature,
+                r.drs
+            )
+        };
+        println!("checkpoint: {}\nbaseline:   {}", sampling(&a), sampling(&b));
+    }
     let (reports, baseline_reports) = (a.table(), b.table());
     let comparison = paired_comparison(&reports, &baseline_reports);
     print_comparison(&args.baseline, &reports, &baseline_reports, &comparison, args.json)
@@ -454,7 +470,8 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
 #[derive(Debug, Args)]
 pub struct GridArgs {
     /// Results files of `bench success --out` (whole or merged), one per cell: the same tasks,
-    /// seeds, keyframe limit, cameras and samples, differing in checkpoint, --steps and --no-drs.
+    /// seeds, keyframe limit, cameras, samples, consensus and pointer temperature, differing in
+    /// checkpoint, --steps and --no-drs.
     #[arg(required = true)]
     results: Vec<PathBuf>,
     /// Draw the grid to this PNG: success and latency against Euler steps, one line per arm.

@@ -117,8 +117,6 @@ fn print_json(value: &impl serde::Serialize) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// clap parser for counts that must be at least 1 (`--samples`, `--steps`): 0 is refused at the
-/// command line, with what was expected, instead of deep inside the sampler.
 /// `--consensus`: which of several keyframe samples is executed.
 fn consensus_rule(text: &str) -> Result<Consensus, String> {
     match text {
@@ -128,7 +126,7 @@ fn consensus_rule(text: &str) -> Result<Consensus, String> {
     }
 }
 
-/// A finite number above 0.
+/// clap parser for a finite number above 0 (`--pointer-temperature`).
 fn positive_number(text: &str) -> Result<f64, String> {
     match text.parse::<f64>() {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(v),
@@ -136,6 +134,8 @@ fn positive_number(text: &str) -> Result<f64, String> {
     }
 }
 
+/// clap parser for counts that must be at least 1 (`--samples`, `--steps`): 0 is refused at the
+/// command line, with what was expected, instead of deep inside the sampler.
 fn at_least_one(text: &str) -> Result<usize, String> {
     match text.parse::<usize>() {
         Ok(0) => Err("expected a whole number of at least 1, got 0".into()),

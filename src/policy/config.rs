@@ -168,7 +168,7 @@ pub struct FlowConfig {
     pub consensus_samples: usize,
     /// Which of those samples is executed: `"medoid"` (the sample with the least summed distance
     /// to the others) or `"mode"` (the sample with the most others within
-    /// [`crate::policy::inference::MODE_RADIUS`], the medoid among equals). See
+    /// [`crate::policy::inference::MODE_RADIUS`]; among equals, the least summed distance). See
     /// [`crate::policy::inference::consensus`].
     #[serde(default)]
     pub consensus: Consensus,
@@ -243,7 +243,8 @@ impl PointerSharpening {
 
     /// The pointer's temperature at flow time `t`.
     pub fn temperature_at(&self, t: f32) -> f64 {
-        if f64::from(t) < self.until { self.temperature } else { 1.0 }
+        // in f32, as the sampler's t: 7 / 10 as f32 is below 0.7 as f64
+        if t < self.until as f32 { self.temperature } else { 1.0 }
     }
 }
 
@@ -255,7 +256,9 @@ pub enum Consensus {
     #[default]
     Medoid,
     /// The sample in the densest cluster: the most others within
-    /// [`crate::policy::inference::MODE_RADIUS`], the medoid among equals. Where the samples
+    /// [`crate::policy::inference::MODE_RADIUS`]; among equals, the least summed distance to
+    /// all samples (so within a cluster the sample nearest the rest, at most the radius from
+    /// its centre). Where the samples
     /// split between several objects the medoid leans to the one nearest the middle of them all;
     /// the mode goes with the most samples.
     Mode,

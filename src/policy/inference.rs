@@ -210,8 +210,8 @@ impl Policy {
     }
 }
 
-/// Metres: samples closer than this count as one mode in [`Consensus::Mode`] (half a 4 cm block,
-/// the pointer's `pointer_sigma`).
+/// Metres: samples closer than this count as one mode in [`Consensus::Mode`] (half a 4 cm block;
+/// the same as `flow.pointer_sigma`'s default, not tied to it).
 pub const MODE_RADIUS: f64 = 0.02;
 
 /// The consensus of several samples of one observation's keyframe, whole: its rotation and
@@ -222,8 +222,9 @@ pub const MODE_RADIUS: f64 = 0.02;
 /// - [`Consensus::Medoid`]: the sample with the least summed distance to the others. With two
 ///   modes it is the majority's; with many, spread over the table, it leans to the sample
 ///   nearest the middle of them all, which need not be the most sampled.
-/// - [`Consensus::Mode`]: the sample with the most others within [`MODE_RADIUS`], the medoid
-///   among equals (so the medoid whenever no two samples are that close).
+/// - [`Consensus::Mode`]: the sample with the most others within [`MODE_RADIUS`]; among equals,
+///   the least summed distance to all samples (so the medoid whenever no two samples are that
+///   close).
 ///
 /// Samples with a non-finite position take no part (if all have one, the first is returned, for
 /// the caller's checks to reject). `None` for no samples.
@@ -310,8 +311,8 @@ mod tests {
     fn the_mode_goes_with_the_most_samples_where_the_medoid_leans_to_the_middle() {
         // Four objects on a line, 15 cm apart: three samples on the first, one on the second,
         // two on the third, one on the fourth. The medoid is the lone sample on the second (in
-        // the middle of them all); the mode is one of the three, the medoid among them (the one
-        // nearest the rest), whole.
+        // the middle of them all); the mode is one of the three, the one with the least summed
+        // distance to all samples (the one nearest the rest), whole.
         let poses = [
             at(0.0, true),
             at(0.004, true),

@@ -6,7 +6,8 @@
 //! log2 axis.
 //!
 //! Every cell must be a whole, complete evaluation of the same tasks, seeds, keyframe limit,
-//! cameras, samples per observation and consensus rule, so the cells differ only in the checkpoint, the steps
+//! cameras, samples per observation, consensus rule and pointer temperature, so the cells differ
+//! only in the checkpoint, the steps
 //! and DRS: the comparison is paired on seeds.
 use std::path::{Path, PathBuf};
 
@@ -66,13 +67,14 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
             )));
         }
         let setting = |r: &SuccessRecord| {
-            (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), r.samples, r.consensus)
+            let sampling = (r.samples, r.consensus, r.pointer_temperature.to_bits());
+            (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), sampling)
         };
         if setting(record) != setting(first) {
             return Err(grid_error(format!(
                 "{} and {} are not on the same episodes and sampling: tasks {:?}, seeds {}+{}, max keyframes {}, \
-                 cameras {:?}, samples {} ({}) against tasks {:?}, seeds {}+{}, max keyframes {}, cameras {:?}, \
-                 samples {} ({})",
+                 cameras {:?}, samples {} ({}, pointer temperature {}) against tasks {:?}, seeds {}+{}, max \
+                 keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {})",
                 path.display(),
                 first_path.display(),
                 record.tasks,
@@ -82,13 +84,15 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 record.cameras,
                 record.samples,
                 record.consensus.name(),
+                record.pointer_temperature,
                 first.tasks,
                 first.seed,
                 first.episodes,
                 first.max_keyframes,
                 first.cameras,
                 first.samples,
-                first.consensus.name()
+                first.consensus.name(),
+                first.pointer_temperature
             )));
         }
         if let Some(twin) = cells.iter().find(|c| {
@@ -401,7 +405,10 @@ mod tests {
         assert!(message(vec![base(), entry("b.json", other_samples)]).contains("samples 1"));
         let mut other_rule = record("runs/drs", 4, true, 100.0, |_, _| true);
         other_rule.consensus = Consensus::Mode;
-        assert!(message(vec![base(), entry("b.json", other_rule)]).contains("samples 8 (mode)"));
+        assert!(message(vec![base(), entry("b.json", other_rule)]).contains("samples 8 (mode"));
+        let mut sharpened = record("runs/drs", 4, true, 100.0, |_, _| true);
+        sharpened.pointer_temperature = 0.1;
+        assert!(message(vec![base(), entry("b.json", sharpened)]).contains("pointer temperature 0.1"));
         let twice = message(vec![base(), entry("b.json", record("runs/drs", 8, true, 50.0, |_, _| false))]);
         assert!(twice.contains("same cell") && twice.contains("a.json"), "{twice}");
         let mut incomplete = record("runs/drs", 4, true, 100.0, |_, _| true);

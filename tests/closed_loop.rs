@@ -5,7 +5,6 @@
 mod common;
 
 use flowram::control::keyframe::Keyframe;
-use flowram::policy::config::{Consensus, PointerSharpening};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::{Observation, is_detour, keyframe_index};
@@ -223,14 +222,7 @@ fn flowram_acts_closed_loop_through_the_control_stack() {
     let config = common::tiny_policy_config();
     let text = TextEncoder::load_installed().unwrap();
     let policy = Policy::random(&config, text).unwrap();
-    let options = SamplingOptions {
-        steps: 2,
-        samples: 1,
-        drs: true,
-        seed: 5,
-        consensus: Consensus::Medoid,
-        sharpening: PointerSharpening::OFF,
-    };
+    let options = SamplingOptions::new(2, 1, 5);
     let mut actor = FlowRamActor::new(policy, options);
     let task = tasks::by_name("slide_block").unwrap();
     let mut world = tasks::load_world(task.as_ref()).unwrap();

@@ -88,19 +88,7 @@ fn overfits_a_handful_of_keyframes() {
     for k in 0..keyframes {
         let observation = Observation::from_episode(&episode, k).unwrap();
         let target = Observation::episode_action(&episode, k);
-        let predicted = policy
-            .predict(
-                &observation,
-                &SamplingOptions {
-                    steps: 8,
-                    samples: 1,
-                    drs: true,
-                    seed: 0,
-                    consensus: Consensus::Medoid,
-                    sharpening: PointerSharpening::OFF,
-                },
-            )
-            .unwrap()[0];
+        let predicted = policy.predict(&observation, &SamplingOptions::new(8, 1, 0)).unwrap()[0];
         let (p, r) = predicted.error_to(&target);
         assert!(p < 0.01 && r < 5f32.to_radians(), "keyframe {k}: {:.1} mm, {:.1} deg off", p * 1e3, r.to_degrees());
         assert_eq!(predicted.gripper_open, target.gripper_open, "keyframe {k}");
@@ -118,14 +106,7 @@ fn checkpoint_round_trip_and_truncation() {
     let mut text = text();
     train(run.path(), Some(&config), &mut data, &mut text, false, None, &mut Quiet).unwrap();
     let observation = Observation::from_episode(&episode, 1).unwrap();
-    let options = SamplingOptions {
-        steps: 4,
-        samples: 2,
-        drs: true,
-        seed: 7,
-        consensus: Consensus::Medoid,
-        sharpening: PointerSharpening::OFF,
-    };
+    let options = SamplingOptions::new(4, 2, 7);
     let a = Policy::load(run.path(), text).unwrap().predict_once(&observation, &options);
     let b = Policy::load(run.path(), self::text()).unwrap().predict_once(&observation, &options);
     assert_eq!(a, b, "same checkpoint and noise seed, same prediction");
@@ -563,19 +544,7 @@ fn a_policy_sees_only_the_cameras_its_config_names() {
     let side = 3 * 64 * 64;
     let rgb = &observation.cameras[1].rgb;
     assert_eq!(prepared.images[..side / 3], rgb.iter().step_by(3).copied().collect::<Vec<u8>>()[..]);
-    policy
-        .predict(
-            &observation,
-            &SamplingOptions {
-                steps: 2,
-                samples: 1,
-                drs: true,
-                seed: 0,
-                consensus: Consensus::Medoid,
-                sharpening: PointerSharpening::OFF,
-            },
-        )
-        .unwrap();
+    policy.predict(&observation, &SamplingOptions::new(2, 1, 0)).unwrap();
     // A camera the observation does not have is named, with what to do.
     config.observation.cameras = vec!["overhead".into()];
     let mut policy = Policy::random(&config, text()).unwrap();
@@ -807,8 +776,7 @@ fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     let mut policy = Policy::random(&config, text()).unwrap();
     let observation = Observation::from_episode(demonstration(), 1).unwrap();
     let mut predict = |sharpening: PointerSharpening| {
-        let options =
-            SamplingOptions { steps: 4, samples: 2, drs: true, seed: 3, consensus: Consensus::Medoid, sharpening };
+        let options = SamplingOptions { sharpening, ..SamplingOptions::new(4, 2, 3) };
         policy.predict(&observation, &options).unwrap()
     };
     let trained = predict(PointerSharpening::OFF);

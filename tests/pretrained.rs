@@ -3,7 +3,6 @@
 //! predicts the first keyframe of a held-out episode of every task it was trained on where it did
 //! when shipped, and follows the instruction. Fails if a checkpoint, its config or the inference path breaks.
 use flowram::data::Episode;
-use flowram::policy::config::{Consensus, PointerSharpening};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::{KeyframePose, Observation};
@@ -29,18 +28,6 @@ fn expert(policy: &Policy, task: &str, variation: usize, seed: u64) -> Episode {
         collection::demonstration(task.as_ref(), variation, seed, &DEFAULT_CAMERAS, size, Visuals::Full).unwrap();
     assert!(episode.success, "the expert must solve {} seed {seed}", episode.task);
     episode
-}
-
-/// `steps` Euler steps, `samples` samples and their medoid, the pointer as trained.
-fn options(steps: usize, samples: usize) -> SamplingOptions {
-    SamplingOptions {
-        steps,
-        samples,
-        drs: true,
-        seed: 0,
-        consensus: Consensus::Medoid,
-        sharpening: PointerSharpening::OFF,
-    }
 }
 
 /// The keyframe the shipped checkpoint executes: its config's sampling.
@@ -257,7 +244,7 @@ fn the_heldout_report_lists_every_keyframe_with_the_errors_it_summarises() {
         expert(&policy, "push_buttons", 0, SEED + 2),
     ];
     let held = TrainingData::from_episodes(held).unwrap();
-    let report = heldout_errors(&mut policy, &train, &held, &options(2, 1), &mut ()).unwrap();
+    let report = heldout_errors(&mut policy, &train, &held, &SamplingOptions::new(2, 1, 0), &mut ()).unwrap();
     // Held out in the order push_buttons, open_drawer, push_buttons: the report goes by task name,
     // and within a task by the episodes' order (a stable sort keeps it).
     let mut expected: Vec<(String, usize, u64, usize, [f32; 3])> = held

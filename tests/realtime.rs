@@ -9,7 +9,6 @@ use std::time::Duration;
 use flowram::control::backend::{Cycle, RobotBackend};
 use flowram::control::keyframe::Keyframe;
 use flowram::control::osc_config::OscConfig;
-use flowram::policy::config::{Consensus, PointerSharpening};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::rollout::episode::{Actor, Observer, run_episode};
@@ -229,14 +228,7 @@ fn the_expert_solves_a_task_on_the_realtime_runtime_at_wall_clock_pace() {
 #[test]
 fn a_policy_on_the_realtime_runtime_sees_and_does_what_it_does_in_lock_step() {
     let config = common::tiny_policy_config();
-    let options = SamplingOptions {
-        steps: 2,
-        samples: 1,
-        drs: true,
-        seed: 5,
-        consensus: Consensus::Medoid,
-        sharpening: PointerSharpening::OFF,
-    };
+    let options = SamplingOptions::new(2, 1, 5);
     let actor = || FlowRamActor::new(Policy::random(&config, TextEncoder::load_installed().unwrap()).unwrap(), options);
     let task = tasks::by_name("slide_block").unwrap();
     let mut world = tasks::load_world(task.as_ref()).unwrap();

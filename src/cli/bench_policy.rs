@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use clap::Args;
 use flowram::data::Episode;
-use flowram::policy::config::{Consensus, PointerSharpening, PolicyConfig};
+use flowram::policy::config::{Consensus, PolicyConfig};
 use flowram::policy::inference::{Policy, SampleProfile, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::runtime::in_pool;
@@ -162,17 +162,7 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
             let mut v = Vec::new();
             for r in 0..args.repeats {
                 let t0 = Instant::now();
-                policy.predict(
-                    &observation,
-                    &SamplingOptions {
-                        steps,
-                        samples: 1,
-                        drs,
-                        seed: r as u64,
-                        consensus: Consensus::Medoid,
-                        sharpening: PointerSharpening::OFF,
-                    },
-                )?;
+                policy.predict(&observation, &SamplingOptions { drs, ..SamplingOptions::new(steps, 1, r as u64) })?;
                 v.push(t0.elapsed().as_secs_f64() * 1e3);
             }
             Ok(median(&v))
@@ -186,19 +176,7 @@ pub fn bench_cmd(args: PolicyBenchArgs) -> anyhow::Result<()> {
     let mut profiles = Vec::new();
     for r in 0..args.repeats {
         let mut profile = SampleProfile::default();
-        policy.sample_profiled(
-            &prepared,
-            &encoded,
-            &SamplingOptions {
-                steps: 8,
-                samples: 1,
-                drs: true,
-                seed: r as u64,
-                consensus: Consensus::Medoid,
-                sharpening: PointerSharpening::OFF,
-            },
-            &mut profile,
-        )?;
+        policy.sample_profiled(&prepared, &encoded, &SamplingOptions::new(8, 1, r as u64), &mut profile)?;
         profiles.push(profile);
     }
     let drs8 = SampleProfile {

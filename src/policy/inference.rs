@@ -41,6 +41,12 @@ pub struct SamplingOptions {
 }
 
 impl SamplingOptions {
+    /// `steps` Euler steps and `samples` samples from noise seed `seed`, with DRS, their medoid
+    /// executed, the pointer as trained.
+    pub fn new(steps: usize, samples: usize, seed: u64) -> Self {
+        Self { steps, samples, drs: true, seed, consensus: Consensus::Medoid, sharpening: PointerSharpening::OFF }
+    }
+
     /// The radius schedule these options sample with, given the checkpoint's `configured` one:
     /// that schedule, or global tokens at every step when `drs` is off.
     pub fn schedule(&self, configured: RadiusSchedule) -> RadiusSchedule {
@@ -263,14 +269,7 @@ mod tests {
     #[test]
     fn drs_is_the_configured_dynamic_schedule_unless_switched_off() {
         let dynamic = RadiusSchedule::default();
-        let on = SamplingOptions {
-            steps: 8,
-            samples: 1,
-            drs: true,
-            seed: 0,
-            consensus: Consensus::Medoid,
-            sharpening: PointerSharpening::OFF,
-        };
+        let on = SamplingOptions::new(8, 1, 0);
         let off = SamplingOptions { drs: false, ..on };
         assert_eq!(on.schedule(dynamic), dynamic);
         assert_eq!(off.schedule(dynamic), RadiusSchedule::Global);

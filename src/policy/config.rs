@@ -258,9 +258,8 @@ pub enum Consensus {
     /// The sample in the densest cluster: the most others within
     /// [`crate::policy::inference::MODE_RADIUS`]; among equals, the least summed distance to
     /// all samples (so within a cluster the sample nearest the rest, at most the radius from
-    /// its centre). Where the samples
-    /// split between several objects the medoid leans to the one nearest the middle of them all;
-    /// the mode goes with the most samples.
+    /// its centre). Where the samples split between several objects the medoid leans to the one
+    /// nearest the middle of them all; the mode goes with the most samples.
     Mode,
 }
 

@@ -308,6 +308,13 @@ fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
         (&["bench", "faults", "--runs", "0"][..], "--runs"),
         (&["run", "--task", "open_drawer", "--realtime", "--video", "x.gif"][..], "--video"),
         (&["run", "--task", "open_drawer", "--latency-ms", "100"][..], "--realtime"),
+        (&["run", "--task", "stack_blocks", "--policy", "flowram", "--consensus", "mean"][..], "`medoid` or `mode`"),
+        (&["bench", "success", "--tasks", "stack_blocks", "--pointer-temperature", "0"][..], "above 0"),
+        (
+            &["bench", "heldout", "--checkpoint", "x", "--data", "y", "--train-data", "z", "--pointer-temperature=-1"]
+                [..],
+            "above 0",
+        ),
     ] {
         let out = common::flowram().args(args).output().unwrap();
         assert!(!out.status.success(), "{args:?} succeeded");

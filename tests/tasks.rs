@@ -148,6 +148,28 @@ fn stack_blocks_expert_succeeds_and_idling_does_not() {
 }
 
 #[test]
+fn stack_blocks_takes_the_target_colour_blocks_right_to_left() {
+    use rand::SeedableRng;
+    let task = tasks::by_name("stack_blocks").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let y = |world: &flowram::sim::World, name: &str| world.body_pose(name).unwrap().translation.y;
+    for seed in 0..30u64 {
+        let variation = (seed as usize * 7) % 60;
+        let state = task.reset(&mut world, variation, &mut rand::rngs::StdRng::seed_from_u64(seed)).unwrap();
+        assert_eq!(state.targets.len(), variation % 3 + 2, "the instruction's count");
+        // block_0..block_3 carry the target colour (the task's reset)
+        let same_colour: Vec<String> = (0..4).map(|i| format!("block_{i}")).collect();
+        assert!(state.targets.iter().all(|t| same_colour.contains(t)), "{:?}", state.targets);
+        let ys: Vec<f64> = state.targets.iter().map(|t| y(&world, t)).collect();
+        assert!(ys.windows(2).all(|w| w[0] < w[1]), "seed {seed}: targets not right to left: {ys:?}");
+        let last = *ys.last().unwrap();
+        for rest in same_colour.iter().filter(|b| !state.targets.contains(b)) {
+            assert!(y(&world, rest) > last, "seed {seed}: {rest} is right of a block that is stacked before it");
+        }
+    }
+}
+
+#[test]
 fn slide_block_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("slide_block").unwrap();
     let expert = success_rate(task.as_ref(), || Actor::Expert, 10);

@@ -4,8 +4,11 @@
 //! Variations: 20 colours x counts 2, 3, 4 (v = 3 * colour + count - 2). Reset: four blocks of
 //! the target colour and two of other colours, at x in [0.38, 0.66] m, y in [-0.28, 0.28] m
 //! (world), at least 8 cm apart and from the platform, turned by up to 45 deg; the platform
-//! at x in [0.5, 0.58], y in [-0.05, 0.05]. Expert (6 keyframes per block): above the block,
-//! down and close, lift, above the stack, down to the next level and open, lift. Success: at
+//! at x in [0.5, 0.58], y in [-0.05, 0.05]. The blocks to stack are the `count` blocks of the
+//! target colour with the smallest y (the robot's right first), taken in that order: a rule the
+//! camera can see, so the next block is a function of the scene and not of a hidden index (four
+//! blocks look alike). Expert (6 keyframes per block): above the block, down and close, lift,
+//! above the stack, down to the next level and open, lift. Success: at
 //! least `count` blocks of the target colour on the platform's footprint (within 2.5 cm of its
 //! centre), one per level, the stack standing.
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
@@ -30,6 +33,16 @@ pub struct StackBlocks;
 
 fn colour_and_count(variation: usize) -> (usize, usize) {
     (variation / 3, variation % 3 + 2)
+}
+
+/// The blocks to stack, in order: of the target-colour blocks at `spots` (`block_0`...), the
+/// `count` with the smallest y (the robot's right first; a tie, within 0.1 mm, goes to the
+/// smaller x). The order is visible in the scene, so a policy can learn which block comes next.
+fn stacking_order(spots: &[Vector2<f64>], count: usize) -> Vec<String> {
+    let mut order: Vec<usize> = (0..spots.len()).collect();
+    let key = |i: &usize| ((spots[*i].y * 1e4).round() as i64, (spots[*i].x * 1e4).round() as i64);
+    order.sort_by_key(key);
+    order.into_iter().take(count).map(|i| format!("block_{i}")).collect()
 }
 
 fn yaw_of(pose: &Isometry3<f64>) -> f64 {
@@ -60,7 +73,6 @@ impl Task for StackBlocks {
         });
         let mut others: Vec<usize> = (0..COLORS.len()).filter(|&c| c != colour).collect();
         others.shuffle(rng);
-        let mut targets = Vec::new();
         for (i, spot) in spots.iter().enumerate() {
             let name = format!("block_{i}");
             let yaw = rng.random_range(-45f64..45.0).to_radians();
@@ -73,11 +85,8 @@ impl Task for StackBlocks {
             )?;
             let c = if i < TARGET_BLOCKS { colour } else { others[i - TARGET_BLOCKS] };
             world.set_geom_rgba(&name, colors::rgba(c))?;
-            if i < TARGET_BLOCKS && targets.len() < count {
-                targets.push(name);
-            }
         }
-        Ok(TaskState { targets, events: Vec::new() })
+        Ok(TaskState { targets: stacking_order(&spots[..TARGET_BLOCKS], count), events: Vec::new() })
     }
 
     fn success(&self, world: &World, state: &TaskState) -> bool {
@@ -96,8 +105,8 @@ impl Task for StackBlocks {
         levels.len() >= count && levels.iter().take(count).enumerate().all(|(i, &l)| l == i)
     }
 
-    /// Right: the other blocks of the named colour (any may go first); wrong: the two blocks of
-    /// other colours.
+    /// Right: the other blocks of the named colour (those the rule puts later); wrong: the two
+    /// blocks of other colours.
     fn target_alternatives(&self, state: &TaskState) -> TargetAlternatives {
         let first = state.targets.first();
         let block = |i: usize| format!("block_{i}");

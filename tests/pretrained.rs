@@ -76,7 +76,9 @@ fn distance_mm(a: &KeyframePose, b: &KeyframePose) -> f64 {
 /// The first keyframe of each task's held-out episode at [`SEED`], as the shipped checkpoint
 /// executes it (world frame, m; 8 Euler steps, noise seed 0, the consensus of its config's 8
 /// samples since 2026-12-02 session 7), and the expert's distance from it (mm), recorded in the
-/// model card. Re-recorded when FT-X shipped (2026-12-05, session 22).
+/// model card. Re-recorded when FT-X shipped (2026-12-05, session 22); stack_blocks' expert
+/// distance since its expert stacks the target colour right to left (session 24: the expert now
+/// starts at another block, 69.9 mm from the prediction; it was 23.0 mm).
 const OPEN_DRAWER: [f32; 3] = [0.4512083, 0.024602205, 0.9940723];
 const PUSH_BUTTONS: [f32; 3] = [0.6106698, -0.13191259, 0.83830804];
 const SLIDE_BLOCK: [f32; 3] = [0.50486183, -0.0012288988, 0.868822];
@@ -87,7 +89,7 @@ const SHIPPED_PREDICTIONS: [(&str, [f32; 3], f64); 5] = [
     ("push_buttons", PUSH_BUTTONS, 7.9),
     ("slide_block", SLIDE_BLOCK, 26.0),
     ("close_jar", CLOSE_JAR, 6.8),
-    ("stack_blocks", STACK_BLOCKS, 23.0),
+    ("stack_blocks", STACK_BLOCKS, 69.9),
 ];
 
 /// Each prediction is within [`REPRODUCE_MM`] of the one recorded when the checkpoint shipped,
@@ -141,7 +143,7 @@ fn the_shipped_checkpoint_predicts_what_it_predicted_when_shipped() {
 
 /// The goal of the policy issue: every task's first keyframe within 2 cm. The shipped checkpoint
 /// meets it on open_drawer, push_buttons and close_jar at this seed and misses slide_block and
-/// stack_blocks (26 and 23 mm, see SHIPPED_PREDICTIONS and the model card), so this test is run on
+/// stack_blocks (26 and 70 mm, see SHIPPED_PREDICTIONS and the model card), so this test is run on
 /// demand (`cargo test --release --test pretrained -- --ignored`) until it passes.
 #[test]
 #[ignore = "missed by the shipped checkpoint on two of five tasks at this seed (model card); run with --ignored"]
@@ -189,7 +191,8 @@ fn goes_to_the_drawer_it_is_told(checkpoint: &str) {
 }
 
 /// The ten-task checkpoint (the default for the tasks five-tasks was not trained on): each task's first keyframe at [`SEED`] as predicted when
-/// it was shipped (world frame, m; 8 Euler steps, noise seed 0) and the expert's distance (mm).
+/// it was shipped (world frame, m; 8 Euler steps, noise seed 0) and the expert's distance (mm;
+/// stack_blocks' since its expert's right-to-left order, session 24: 368.1, was 310.5).
 const TEN_TASK_PREDICTIONS: [[f32; 3]; 10] = [
     [0.4588564, 0.0090225935, 0.9868793],
     [0.4820298, 0.09110659, 0.83400345],
@@ -202,7 +205,7 @@ const TEN_TASK_PREDICTIONS: [[f32; 3]; 10] = [
     [0.41661796, -0.24974653, 0.88481104],
     [0.40696594, -0.40791106, 0.8853148],
 ];
-const TEN_TASK_EXPERT_MM: [f64; 10] = [10.9, 259.7, 80.2, 132.3, 310.5, 93.6, 22.3, 7.2, 28.2, 13.7];
+const TEN_TASK_EXPERT_MM: [f64; 10] = [10.9, 259.7, 80.2, 132.3, 368.1, 93.6, 22.3, 7.2, 28.2, 13.7];
 
 #[test]
 fn the_ten_task_checkpoint_predicts_what_it_predicted_when_shipped() {

@@ -310,6 +310,7 @@ fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
         (&["run", "--task", "open_drawer", "--latency-ms", "100"][..], "--realtime"),
         (&["run", "--task", "stack_blocks", "--policy", "flowram", "--consensus", "mean"][..], "`medoid` or `mode`"),
         (&["bench", "success", "--tasks", "stack_blocks", "--pointer-temperature", "0"][..], "above 0"),
+        (&["predict", "--checkpoint", "x", "--episode", "y", "--keyframe", "0", "--consensus", "mean"][..], "`medoid`"),
         (
             &["bench", "heldout", "--checkpoint", "x", "--data", "y", "--train-data", "z", "--pointer-temperature=-1"]
                 [..],
@@ -322,6 +323,51 @@ fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
         assert!(err.contains(expected), "{args:?}: {err}");
         assert!(!err.contains("panicked"), "{args:?}: {err}");
     }
+}
+
+#[test]
+fn predict_prints_every_sample_and_marks_the_executed_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("held");
+    let out = common::flowram()
+        .args(["collect", "--task", "open_drawer", "--episodes", "1", "--seed", "1000", "--cameras", "front,wrist"])
+        .arg("--out")
+        .arg(&data)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let checkpoint = flowram::deps::models_dir().join("policy/pretrained/five-tasks");
+    let predict = |extra: &[&str]| {
+        let out = common::flowram()
+            .arg("predict")
+            .arg("--checkpoint")
+            .arg(&checkpoint)
+            .arg("--episode")
+            .arg(data.join("episode_00000.safetensors"))
+            .args(["--keyframe", "0", "--samples", "5", "--json"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let position = |p: &serde_json::Value| -> Vec<f64> {
+        p["keyframe"]["position"].as_array().unwrap().iter().map(|v| v.as_f64().unwrap()).collect()
+    };
+    let report = predict(&[]);
+    assert_eq!((report["consensus"].as_str(), report["pointer_temperature"].as_f64()), (Some("medoid"), Some(1.0)));
+    let positions: Vec<Vec<f64>> = report["predictions"].as_array().unwrap().iter().map(position).collect();
+    assert_eq!(positions.len(), 5);
+    // the medoid: the least summed distance to the other samples
+    let summed = |a: &Vec<f64>| -> f64 {
+        positions.iter().map(|b| a.iter().zip(b).map(|(x, y)| (x - y).powi(2)).sum::<f64>().sqrt()).sum()
+    };
+    let medoid = (0..5).min_by(|&i, &j| summed(&positions[i]).total_cmp(&summed(&positions[j]))).unwrap();
+    assert_eq!(report["executed"].as_u64(), Some(medoid as u64), "{positions:?}");
+    let sharpened = predict(&["--consensus", "mode", "--pointer-temperature", "0.25"]);
+    assert_eq!(sharpened["consensus"], "mode");
+    assert_eq!(sharpened["pointer_temperature"].as_f64(), Some(0.25));
+    assert!(sharpened["executed"].as_u64().unwrap() < 5);
 }
 
 /// A results file of `bench success --out` on two tasks, seeds 1000-1003, with these successes.

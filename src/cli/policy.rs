@@ -5,8 +5,8 @@ use std::time::Instant;
 use anyhow::bail;
 use clap::Args;
 use flowram::policy::PolicyError;
-use flowram::policy::config::PolicyConfig;
-use flowram::policy::inference::{Policy, SamplingOptions};
+use flowram::policy::config::{Consensus, PointerSharpening, PolicyConfig};
+use flowram::policy::inference::{Policy, SamplingOptions, consensus};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::{KeyframePose, Observation};
 use flowram::policy::training::data::TrainingData;
@@ -98,9 +98,16 @@ pub struct PredictArgs {
     /// Euler steps (default: the config's flow.sampling_steps).
     #[arg(long, value_parser = super::at_least_one)]
     steps: Option<usize>,
-    /// Keyframe samples to draw (all are printed).
+    /// Keyframe samples to draw (all are printed, the one a closed-loop run executes marked).
     #[arg(long, default_value_t = 1, value_parser = super::at_least_one)]
     samples: usize,
+    /// Which sample is executed: medoid or mode (default: the checkpoint's flow.consensus).
+    #[arg(long, value_parser = super::consensus_rule)]
+    consensus: Option<Consensus>,
+    /// The position pointer's temperature over the first Euler steps, as `run` takes it (default:
+    /// the checkpoint's flow.pointer_sharpening.temperature).
+    #[arg(long, value_parser = super::positive_number)]
+    pointer_temperature: Option<f64>,
     /// The w/o-DRS ablation: geometric tokens sampled globally at every step.
     #[arg(long)]
     no_drs: bool,
@@ -125,6 +132,10 @@ struct PredictReport {
     instruction: String,
     steps: usize,
     drs: bool,
+    consensus: &'static str,
+    pointer_temperature: f64,
+    /// The index in `predictions` of the sample a closed-loop run executes (their consensus).
+    executed: usize,
     recorded: KeyframePose,
     predictions: Vec<Prediction>,
     seconds: f64,
@@ -142,11 +153,16 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         samples: args.samples,
         drs: !args.no_drs,
         seed: args.seed,
-        consensus: policy.config().flow.consensus,
-        sharpening: policy.config().flow.pointer_sharpening,
+        consensus: args.consensus.unwrap_or(policy.config().flow.consensus),
+        sharpening: match args.pointer_temperature {
+            Some(temperature) => PointerSharpening { temperature, ..policy.config().flow.pointer_sharpening },
+            None => policy.config().flow.pointer_sharpening,
+        },
     };
     let keyframes = policy.predict(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();
+    let chosen = consensus(&keyframes, options.consensus);
+    let executed = keyframes.iter().position(|k| Some(*k) == chosen).unwrap_or(0);
     let predictions: Vec<Prediction> = keyframes
         .into_iter()
         .map(|k| {
@@ -165,6 +181,9 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         instruction: observation.instruction.clone(),
         steps,
         drs: options.samples_with_drs(policy.config().radius_schedule),
+        consensus: options.consensus.name(),
+        pointer_temperature: options.sharpening.temperature,
+        executed,
         recorded,
         predictions,
         seconds,
@@ -173,12 +192,14 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         return super::print_json(&report);
     }
     println!(
-        "{} keyframe {}: \"{}\" ({} Euler steps, DRS {})",
+        "{} keyframe {}: \"{}\" ({} Euler steps, DRS {}, pointer temperature {}, consensus {})",
         report.episode.display(),
         report.keyframe,
         report.instruction,
         steps,
-        if report.drs { "on" } else { "off" }
+        if report.drs { "on" } else { "off" },
+        report.pointer_temperature,
+        report.consensus
     );
     let show = |k: &KeyframePose| {
         format!(
@@ -196,8 +217,9 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
     println!("  recorded:  {}", show(&report.recorded));
     for (i, p) in report.predictions.iter().enumerate() {
         println!(
-            "  sample {i}: {}\n             error {:.1} mm, {:.1} deg, gripper {}",
+            "  sample {i}: {}{}\n             error {:.1} mm, {:.1} deg, gripper {}",
             show(&p.keyframe),
+            if i == report.executed && report.predictions.len() > 1 { " (executed)" } else { "" },
             p.position_error_mm,
             p.rotation_error_deg,
             if p.gripper_correct { "right" } else { "wrong" }

@@ -161,10 +161,11 @@ fn stack_blocks_takes_the_target_colour_blocks_right_to_left() {
         let same_colour: Vec<String> = (0..4).map(|i| format!("block_{i}")).collect();
         assert!(state.targets.iter().all(|t| same_colour.contains(t)), "{:?}", state.targets);
         let ys: Vec<f64> = state.targets.iter().map(|t| y(&world, t)).collect();
-        assert!(ys.windows(2).all(|w| w[0] < w[1]), "seed {seed}: targets not right to left: {ys:?}");
+        // right to left, y compared to the rule's 0.1 mm
+        assert!(ys.windows(2).all(|w| w[0] < w[1] + 1e-4), "seed {seed}: targets not right to left: {ys:?}");
         let last = *ys.last().unwrap();
         for rest in same_colour.iter().filter(|b| !state.targets.contains(b)) {
-            assert!(y(&world, rest) > last, "seed {seed}: {rest} is right of a block that is stacked before it");
+            assert!(y(&world, rest) > last - 1e-4, "seed {seed}: {rest} is right of a block that is stacked before it");
         }
     }
 }

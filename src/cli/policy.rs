@@ -98,7 +98,7 @@ pub struct PredictArgs {
     /// Euler steps (default: the config's flow.sampling_steps).
     #[arg(long, value_parser = super::at_least_one)]
     steps: Option<usize>,
-    /// Keyframe samples to draw (all are printed, the one a closed-loop run executes marked).
+    /// Keyframe samples to draw (all are printed, their consensus marked).
     #[arg(long, default_value_t = 1, value_parser = super::at_least_one)]
     samples: usize,
     /// Which sample is executed: medoid or mode (default: the checkpoint's flow.consensus).

@@ -36,8 +36,10 @@ fn colour_and_count(variation: usize) -> (usize, usize) {
 }
 
 /// The blocks to stack, in order: of the target-colour blocks at `spots` (`block_0`...), the
-/// `count` with the smallest y (the robot's right first; a tie, within 0.1 mm, goes to the
-/// smaller x). The order is visible in the scene, so a policy can learn which block comes next.
+/// `count` with the smallest y (the robot's right first), y rounded to 0.1 mm, equal rounded y
+/// going to the smaller x (no camera tells 0.1 mm apart). The order is visible in the scene, so
+/// a policy can learn which block comes next. Session 24's datasets were collected with exactly
+/// this key.
 fn stacking_order(spots: &[Vector2<f64>], count: usize) -> Vec<String> {
     let mut order: Vec<usize> = (0..spots.len()).collect();
     let key = |i: &usize| ((spots[*i].y * 1e4).round() as i64, (spots[*i].x * 1e4).round() as i64);
@@ -105,8 +107,9 @@ impl Task for StackBlocks {
         levels.len() >= count && levels.iter().take(count).enumerate().all(|(i, &l)| l == i)
     }
 
-    /// Right: the other blocks of the named colour (those the rule puts later); wrong: the two
-    /// blocks of other colours.
+    /// Right: the other blocks of the named colour (success accepts any of them; the expert's
+    /// rule stacks some later, or not at all); wrong: the two blocks of other colours. So the
+    /// probe measures the colour, not whether a policy learnt the order.
     fn target_alternatives(&self, state: &TaskState) -> TargetAlternatives {
         let first = state.targets.first();
         let block = |i: usize| format!("block_{i}");

@@ -224,3 +224,36 @@ fn bad_shard_and_attempt_arguments_fail_clearly_and_write_nothing() {
     assert!(!out.exists(), "nothing is written when the arguments are refused");
     failed_with(common::flowram().args(["merge", "/nonexistent/shard.json"]).output().unwrap(), &["does not exist"]);
 }
+
+#[test]
+fn a_collection_of_an_older_expert_is_refused_on_resume_and_named_when_trained_on() {
+    use flowram::rollout::collection::stale_expert;
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("stack");
+    ok(collect("stack_blocks", 1, &out, None).output().unwrap());
+    let manifest_path = out.join("manifest.json");
+    let mut manifest: Value = serde_json::from_slice(&std::fs::read(&manifest_path).unwrap()).unwrap();
+    assert_eq!(manifest["expert_version"], 2, "stack_blocks' expert since its right-to-left order");
+    assert_eq!(stale_expert(&out).unwrap(), None);
+    // The same folder as an older flowram wrote it (no field: version 1), then with the field.
+    manifest.as_object_mut().unwrap().remove("expert_version");
+    std::fs::write(&manifest_path, serde_json::to_vec_pretty(&manifest).unwrap()).unwrap();
+    let stale = stale_expert(&out).unwrap().expect("an older expert's dataset is named");
+    assert!(stale.contains("expert version 1") && stale.contains("version 2"), "{stale}");
+    manifest["expert_version"] = 1.into();
+    std::fs::write(&manifest_path, serde_json::to_vec_pretty(&manifest).unwrap()).unwrap();
+    let before = std::fs::read(&manifest_path).unwrap();
+    failed_with(collect("stack_blocks", 1, &out, None).output().unwrap(), &["already holds", "(expert version 1)"]);
+    assert_eq!(std::fs::read(&manifest_path).unwrap(), before, "a refused resume writes nothing");
+    // Training on it says so before anything else (this tiny dataset then fails the config's
+    // cameras, which is not what is tested).
+    let trained = common::flowram()
+        .args(["train", "--steps", "1", "--data"])
+        .arg(&out)
+        .arg("--out")
+        .arg(dir.path().join("run"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&trained.stderr);
+    assert!(err.contains("warning:") && err.contains("expert version 1"), "{err}");
+}

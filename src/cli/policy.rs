@@ -11,12 +11,19 @@ use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::{KeyframePose, Observation};
 use flowram::policy::training::data::TrainingData;
 use flowram::policy::training::trainer::train;
+use flowram::rollout::collection::stale_expert;
 use serde::Serialize;
 
 use super::progress::TrainBar;
 
-/// Loads training datasets, reporting the episode files it had to skip.
+/// Loads training datasets, reporting the episode files it had to skip and the datasets
+/// collected with an older version of their task's expert.
 pub fn load_training_data(dirs: &[PathBuf]) -> anyhow::Result<TrainingData> {
+    for dir in dirs {
+        if let Some(warning) = stale_expert(dir)? {
+            eprintln!("warning: {warning}");
+        }
+    }
     let read = TrainingData::read_datasets(dirs)?;
     for (path, reason) in &read.skipped {
         eprintln!("warning: skipping {}: {reason}", path.display());

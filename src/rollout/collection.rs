@@ -95,6 +95,9 @@ pub struct CollectionManifest {
     /// several lists them all, comma-separated.
     pub revision: String,
     pub task: String,
+    /// The task's [`Task::expert_version`] when collected (absent in older manifests: 1).
+    #[serde(default = "first_expert_version")]
+    pub expert_version: u32,
     pub cameras: Vec<String>,
     pub image_size: usize,
     pub seed: u64,
@@ -108,12 +111,17 @@ pub struct CollectionManifest {
     pub attempts: Vec<Attempt>,
 }
 
+fn first_expert_version() -> u32 {
+    1
+}
+
 impl CollectionManifest {
-    fn new(task: &str, options: &CollectOptions) -> Self {
+    fn new(task: &dyn Task, options: &CollectOptions) -> Self {
         Self {
             format: MANIFEST_FORMAT.into(),
             revision: source_revision(),
-            task: task.into(),
+            task: task.name().into(),
+            expert_version: task.expert_version(),
             cameras: options.cameras.clone(),
             image_size: options.size,
             seed: options.seed,
@@ -138,7 +146,7 @@ impl CollectionManifest {
             None => String::new(),
         };
         format!(
-            "--task {} --episodes {} --seed {} --cameras {} --size {} --attempts-per-episode {} --shard-index {} --shard-count {}{perturbation}",
+            "--task {} --episodes {} --seed {} --cameras {} --size {} --attempts-per-episode {} --shard-index {} --shard-count {}{perturbation} (expert version {})",
             self.task,
             self.episodes,
             self.seed,
@@ -146,22 +154,31 @@ impl CollectionManifest {
             self.image_size,
             self.attempts_per_episode,
             self.shard.index,
-            self.shard.count
+            self.shard.count,
+            self.expert_version
         )
     }
 
     fn same_request(&self, other: &Self) -> bool {
-        (&self.task, &self.cameras, self.image_size, self.seed, self.episodes, self.attempts_per_episode, self.shard)
-            == (
-                &other.task,
-                &other.cameras,
-                other.image_size,
-                other.seed,
-                other.episodes,
-                other.attempts_per_episode,
-                other.shard,
-            )
-            && self.perturbation == other.perturbation
+        (
+            &self.task,
+            self.expert_version,
+            &self.cameras,
+            self.image_size,
+            self.seed,
+            self.episodes,
+            self.attempts_per_episode,
+            self.shard,
+        ) == (
+            &other.task,
+            other.expert_version,
+            &other.cameras,
+            other.image_size,
+            other.seed,
+            other.episodes,
+            other.attempts_per_episode,
+            other.shard,
+        ) && self.perturbation == other.perturbation
     }
 
     /// Whether slot `k` has its episode.
@@ -233,7 +250,7 @@ pub fn collect(
     };
     let mut world = tasks::load_world(task)?;
     let (mut rig, cameras) = camera_rig(&world, options.size, Visuals::Full, &options.cameras)?;
-    let mut manifest = CollectionManifest::new(task.name(), options);
+    let mut manifest = CollectionManifest::new(task, options);
     match CollectionManifest::read(out)? {
         Some(found) if found.same_request(&manifest) => manifest.attempts = found.attempts,
         Some(found) => {
@@ -327,6 +344,27 @@ pub struct CollectionMerge {
     pub revisions: Vec<String>,
 }
 
+/// Whether the dataset folder `dir` was collected with another version of its task's expert
+/// than this build's ([`Task::expert_version`]): the sentence saying so (a dataset of an older
+/// expert still trains and scores, for reproducing what it made, so this is for a warning),
+/// `None` when the versions agree, the folder has no manifest (written by hand or by an older
+/// flowram) or the task is unknown here.
+pub fn stale_expert(dir: &Path) -> Result<Option<String>, RolloutError> {
+    let Some(manifest) = CollectionManifest::read(dir)? else { return Ok(None) };
+    let Ok(task) = tasks::by_name(&manifest.task) else { return Ok(None) };
+    let now = task.expert_version();
+    Ok((manifest.expert_version != now).then(|| {
+        format!(
+            "{} holds {} demonstrations of expert version {}, and this build's expert is version {now}: its keyframes \
+             are not what `flowram collect` makes now (see the task's `expert_version`); collect the task again into \
+             a new folder unless you mean to reproduce a run made with it",
+            dir.display(),
+            manifest.task,
+            manifest.expert_version
+        )
+    }))
+}
+
 /// Merges the dataset folders of all shards of one collection into a new dataset at `out`: the
 /// episodes in slot order (the files hard-linked where possible, else copied), one index and
 /// one manifest, exactly as one unsharded run writes them. Refuses shards of different
@@ -362,6 +400,9 @@ pub fn merge_collections(shards: &[PathBuf], out: &Path) -> Result<CollectionMer
         };
         if m.task != first.task {
             return differs("task", m.task.clone(), first.task.clone());
+        }
+        if m.expert_version != first.expert_version {
+            return differs("expert version", m.expert_version.to_string(), first.expert_version.to_string());
         }
         if m.cameras != first.cameras {
             return differs("cameras", format!("{:?}", m.cameras), format!("{:?}", first.cameras));

@@ -58,6 +58,12 @@ pub trait Task: Send + Sync {
     fn success(&self, world: &World, state: &TaskState) -> bool;
     /// The expert's keyframes in the world frame, from the objects as they are now.
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError>;
+    /// The expert's version: raised whenever the expert demonstrates differently for the same
+    /// seed and variation (collections record it, and datasets of an older version are
+    /// refused by a resumed collection and named when trained or scored on). Default: 1.
+    fn expert_version(&self) -> u32 {
+        1
+    }
 
     /// The MJCF files with the task's objects (default: `models/tasks/<name>.xml`; a task built
     /// on another's fixtures lists that task's file too).

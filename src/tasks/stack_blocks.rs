@@ -120,6 +120,12 @@ impl Task for StackBlocks {
         }
     }
 
+    /// 2 since session 24: the named colour's blocks right to left ([`stacking_order`]); 1 took
+    /// `block_0, block_1, ...`, an order the cameras cannot see.
+    fn expert_version(&self) -> u32 {
+        2
+    }
+
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let platform = world.body_pose("platform")?.translation.vector;
         let mut keyframes = Vec::new();

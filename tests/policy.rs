@@ -488,6 +488,10 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.observation.proprio_history, 1);
     assert_eq!(config.flow.consensus, Consensus::Medoid);
     assert_eq!(config.flow.pointer_sharpening, PointerSharpening::OFF);
+    // a command line's --pointer-temperature replaces the temperature only, and only when given
+    let set = PointerSharpening { temperature: 0.5, until: 0.3 };
+    assert_eq!(set.with_temperature(None), set);
+    assert_eq!(set.with_temperature(Some(0.1)), PointerSharpening { temperature: 0.1, until: 0.3 });
     config.validate().unwrap();
     // The consensus rule is one of two names; another is refused with the field and the choices.
     let mut json = serde_json::to_value(tiny_config()).unwrap();

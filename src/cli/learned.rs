@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use flowram::policy::config::{Consensus, PointerSharpening};
+use flowram::policy::config::Consensus;
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
@@ -75,10 +75,7 @@ impl LearnedArgs {
             drs: !self.no_drs,
             seed: 0,
             consensus: self.consensus.unwrap_or(policy.config().flow.consensus),
-            sharpening: match self.pointer_temperature {
-                Some(temperature) => PointerSharpening { temperature, ..policy.config().flow.pointer_sharpening },
-                None => policy.config().flow.pointer_sharpening,
-            },
+            sharpening: policy.config().flow.pointer_sharpening.with_temperature(self.pointer_temperature),
         };
         Ok(FlowRamActor::new(policy, options))
     }

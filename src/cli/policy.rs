@@ -5,7 +5,7 @@ use std::time::Instant;
 use anyhow::bail;
 use clap::Args;
 use flowram::policy::PolicyError;
-use flowram::policy::config::{Consensus, PointerSharpening, PolicyConfig};
+use flowram::policy::config::{Consensus, PolicyConfig};
 use flowram::policy::inference::{Policy, SamplingOptions, consensus};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::{KeyframePose, Observation};
@@ -161,10 +161,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         drs: !args.no_drs,
         seed: args.seed,
         consensus: args.consensus.unwrap_or(policy.config().flow.consensus),
-        sharpening: match args.pointer_temperature {
-            Some(temperature) => PointerSharpening { temperature, ..policy.config().flow.pointer_sharpening },
-            None => policy.config().flow.pointer_sharpening,
-        },
+        sharpening: policy.config().flow.pointer_sharpening.with_temperature(args.pointer_temperature),
     };
     let keyframes = policy.predict(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();

@@ -241,6 +241,12 @@ impl PointerSharpening {
     /// As trained at every step.
     pub const OFF: Self = Self { temperature: 1.0, until: 0.5 };
 
+    /// This sharpening with its temperature replaced where one is given (a command line's
+    /// `--pointer-temperature` over the checkpoint's setting).
+    pub fn with_temperature(self, temperature: Option<f64>) -> Self {
+        Self { temperature: temperature.unwrap_or(self.temperature), ..self }
+    }
+
     /// The pointer's temperature at flow time `t`.
     pub fn temperature_at(&self, t: f32) -> f64 {
         // in f32, as the sampler's t: 7 / 10 as f32 is below 0.7 as f64

@@ -81,7 +81,7 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
     let approaches: Vec<usize> =
         (0..plan.len()).filter(|&k| k + 1 < plan.len() && plan[k][2] - plan[k + 1][2] >= 0.04).collect();
     assert_eq!(approaches, vec![0, 2], "above each cap, then the press");
-    let always = |target| Perturbation { probability: 1.0, sigma_m: 0.03, target, grasp_probability: 0.0 };
+    let always = |target| Perturbation { probability: 1.0, sigma_m: 0.03, target, grasp_probability: 0.0, detours: 1 };
     let run = |world: &mut _, target| {
         run_episode(task.as_ref(), world, 20, 5, Actor::PerturbedExpert(always(target)), None).unwrap()
     };
@@ -126,15 +126,72 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
         assert_eq!(approach.actions[k + i + 1], plan[k]);
     }
     // never: the plain expert
-    let never = Perturbation { probability: 0.0, sigma_m: 0.03, target: RecoveryTarget::Next, grasp_probability: 0.0 };
+    let never = Perturbation {
+        probability: 0.0,
+        sigma_m: 0.03,
+        target: RecoveryTarget::Next,
+        grasp_probability: 0.0,
+        detours: 1,
+    };
     let plain = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(never), None).unwrap();
     assert_eq!(plain.actions, clean.actions);
     // out of range: a clear error, before anything runs
     for (probability, sigma_m, grasp_probability) in [(1.5, 0.03, 0.0), (0.5, f64::NAN, 0.0), (0.5, 0.03, -0.1)] {
-        let bad = Perturbation { probability, sigma_m, target: RecoveryTarget::Next, grasp_probability };
+        let bad = Perturbation { probability, sigma_m, target: RecoveryTarget::Next, grasp_probability, detours: 1 };
         let err =
             run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(bad), None).unwrap_err().to_string();
         assert!(err.contains("expected"), "{err}");
+    }
+}
+
+#[test]
+fn several_detours_per_approach_share_the_first_and_all_go_on_to_the_next_keyframe() {
+    let task = tasks::by_name("push_buttons").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let clean = run_episode(task.as_ref(), &mut world, 20, 5, Actor::Expert, None).unwrap();
+    let plan = &clean.actions;
+    let approaches = [0usize, 2]; // above each cap (the test above checks it)
+    let with = |detours| Perturbation {
+        probability: 1.0,
+        sigma_m: 0.03,
+        target: RecoveryTarget::Next,
+        grasp_probability: 0.0,
+        detours,
+    };
+    let one = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(with(1)), None).unwrap();
+    let three = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(with(3)), None).unwrap();
+    assert!(three.success, "problems: {:?}", three.problems);
+    assert_eq!(three.keyframes, clean.keyframes + 3 * approaches.len());
+    assert_eq!(three.observations.len(), three.actions.len());
+    for (i, &k) in approaches.iter().enumerate() {
+        // step j: the clean observation going to the approach, then three detours, then the
+        // approach pose; every detour's action is the keyframe after the approach
+        let j = k + 3 * i;
+        assert_eq!(three.actions[j], plan[k]);
+        for d in 1..=3 {
+            assert_eq!(three.actions[j + d], plan[k + 1], "detour {d} of approach {k}");
+            let seen = three.observations[j + d].proprio;
+            let off = (0..3).map(|a| (seen[a] - plan[k][a]).powi(2)).sum::<f32>().sqrt();
+            assert!(off > 0.002 && off < 0.2, "detour {d} of approach {k} is {off} m from it");
+        }
+        // the detours differ from each other
+        assert_ne!(three.observations[j + 1].proprio, three.observations[j + 2].proprio);
+        assert_ne!(three.observations[j + 2].proprio, three.observations[j + 3].proprio);
+        // the first detour is the one a single-detour collection makes
+        let first = |r: &flowram::rollout::episode::EpisodeResult, j: usize| r.observations[j].proprio;
+        let reached = |p: [f32; 8], q: [f32; 8]| (0..3).all(|a| (p[a] - q[a]).abs() < 2e-3);
+        assert!(reached(first(&three, j + 1), first(&one, k + i + 1)), "the first detour is drawn as before");
+    }
+    // the keyframe index skips every detour
+    let flat: Vec<f32> = three.actions.iter().flatten().copied().collect();
+    let indices: Vec<usize> = (0..three.actions.len()).map(|j| keyframe_index(&flat, j)).collect();
+    assert_eq!(indices, [0, 1, 1, 1, 1, 2, 3, 3, 3, 3, 4]);
+    // out of range: a clear error
+    for detours in [0, Perturbation::MAX_DETOURS + 1] {
+        let err = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(with(detours)), None)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("detours") && err.contains("expected"), "{err}");
     }
 }
 
@@ -150,7 +207,13 @@ fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() 
         .filter(|&k| plan[k - 1][2] - plan[k][2] >= 0.04 && plan[k - 1][7] == 1.0 && plan[k][7] == 0.0)
         .collect();
     assert_eq!(grasps, vec![1, 7], "down and close, at each block");
-    let misses = Perturbation { probability: 0.0, sigma_m: 0.03, target: RecoveryTarget::Next, grasp_probability: 1.0 };
+    let misses = Perturbation {
+        probability: 0.0,
+        sigma_m: 0.03,
+        target: RecoveryTarget::Next,
+        grasp_probability: 1.0,
+        detours: 1,
+    };
     let run = |world: &mut _| run_episode(task.as_ref(), world, 0, 7, Actor::PerturbedExpert(misses), None).unwrap();
     let missed = run(&mut world);
     assert!(missed.success, "problems: {:?}", missed.problems);

@@ -222,6 +222,11 @@ pub struct CollectArgs {
     /// (with --perturb-sigma; README, "Recovery samples").
     #[arg(long, default_value_t = 0.0, requires = "perturb_sigma")]
     perturb_grasp_probability: f64,
+    /// Detours per approach keyframe that gets one (1 to 8): the further ones are other offsets
+    /// around the same approach, each observation saved with the same action (with
+    /// --perturb-sigma; README, "Recovery samples").
+    #[arg(long, default_value_t = 1, requires = "perturb_sigma")]
+    perturb_detours: u32,
     #[command(flatten)]
     shard: super::ShardArgs,
     #[arg(long)]
@@ -244,6 +249,7 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
             // clap accepts only the names
             target: RecoveryTarget::named(&args.perturb_target).unwrap_or_default(),
             grasp_probability: args.perturb_grasp_probability,
+            detours: args.perturb_detours,
         }),
     };
     let owned = options.shard.items(args.episodes).count();

@@ -137,11 +137,12 @@ impl CollectionManifest {
     fn request(&self) -> String {
         let perturbation = match self.perturbation {
             Some(p) => format!(
-                " --perturb-sigma {} --perturb-probability {} --perturb-target {} --perturb-grasp-probability {}",
+                " --perturb-sigma {} --perturb-probability {} --perturb-target {} --perturb-grasp-probability {} --perturb-detours {}",
                 p.sigma_m,
                 p.probability,
                 p.target.name(),
-                p.grasp_probability
+                p.grasp_probability,
+                p.detours
             ),
             None => String::new(),
         };

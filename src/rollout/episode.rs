@@ -91,6 +91,15 @@ pub struct Perturbation {
     /// neighbour) makes the episode unsuccessful: a collection tries another seed.
     #[serde(default)]
     pub grasp_probability: f64,
+    /// Detours per approach keyframe that gets one, at least 1 (absent in manifests written
+    /// before it existed: 1). The first is drawn as described above; each further one is
+    /// another offset around the same approach keyframe, from its own seeded stream (so a
+    /// collection with more detours has the same first detours as one with one), executed
+    /// from the detour before it, its observation given the same action. More of the samples
+    /// then teach the step from near an approach pose to the keyframe after it, which closed
+    /// loop is where slide_block's episodes fail (`docs/experiments.md`, session 25).
+    #[serde(default = "Perturbation::one_detour")]
+    pub detours: u32,
 }
 
 /// The action recorded for an observation taken on a detour.
@@ -137,6 +146,14 @@ impl Perturbation {
     /// Mixed into the episode seed for the missed grasps' RNG (its own stream, so adding them
     /// leaves the approach detours of a collection as they were).
     const GRASP_SEED_SALT: u64 = 0x9a5b_0f75;
+    /// Mixed into the episode seed for the further detours' RNG ([`Perturbation::detours`]).
+    const EXTRA_DETOUR_SEED_SALT: u64 = 0xde70_0a25;
+    /// The most detours per approach keyframe.
+    pub const MAX_DETOURS: u32 = 8;
+
+    fn one_detour() -> u32 {
+        1
+    }
 
     /// Checks the ranges; the error says what is expected.
     pub fn validate(&self) -> Result<(), String> {
@@ -153,6 +170,13 @@ impl Perturbation {
             return Err(format!(
                 "the perturbation sigma is {} m; expected more than 0 and at most 0.1 m (a few centimetres)",
                 self.sigma_m
+            ));
+        }
+        if !(1..=Self::MAX_DETOURS).contains(&self.detours) {
+            return Err(format!(
+                "the detours per approach keyframe are {}; expected 1 to {}",
+                self.detours,
+                Self::MAX_DETOURS
             ));
         }
         Ok(())
@@ -200,19 +224,24 @@ impl Perturbation {
             return None;
         }
         let go = rng.random::<f64>() < self.probability;
+        let detour = self.offset(&plan[k], rng);
+        go.then_some(detour)
+    }
+
+    /// `approach` moved by a random offset (x, y ~ N(0, sigma), z ~ |N(0, sigma)| upward, each
+    /// clipped to [`Self::CLIP`] sigma).
+    fn offset(&self, approach: &Keyframe, rng: &mut StdRng) -> Keyframe {
         let clip = |v: f64| v.clamp(-Self::CLIP, Self::CLIP) * self.sigma_m;
         let offset = [
             clip(crate::policy::flow::standard_normal(rng)),
             clip(crate::policy::flow::standard_normal(rng)),
             clip(crate::policy::flow::standard_normal(rng)).abs(),
         ];
-        go.then(|| {
-            let mut detour = plan[k];
-            for (p, o) in detour.position.iter_mut().zip(offset) {
-                *p += o;
-            }
-            detour
-        })
+        let mut detour = *approach;
+        for (p, o) in detour.position.iter_mut().zip(offset) {
+            *p += o;
+        }
+        detour
     }
 }
 
@@ -321,6 +350,7 @@ pub fn run_episode(
         _ => None,
     };
     let mut grasp_rng = StdRng::seed_from_u64(seed ^ Perturbation::GRASP_SEED_SALT);
+    let mut extra_detour_rng = StdRng::seed_from_u64(seed ^ Perturbation::EXTRA_DETOUR_SEED_SALT);
     // A missed grasp that touched something: the episode is no demonstration (unsuccessful, so
     // a collection tries another seed).
     let mut spoiled = false;
@@ -379,6 +409,15 @@ pub fn run_episode(
             if p.target == RecoveryTarget::Next {
                 // An approach keyframe has a successor (`is_approach`).
                 action = planned.get(k + 1).copied().unwrap_or(keyframe);
+            }
+            // Further detours around the same approach, each observed with the same action.
+            for _ in 1..p.detours {
+                let further = p.offset(&keyframe, &mut extra_detour_rng);
+                result.observations.push(observation);
+                result.actions.push(proprio_of(&action));
+                execute(task, world, &mut runner, &base, k, &further, &mut state, &mut result)?;
+                result.keyframes += 1;
+                observation = observe(world, observer.as_deref_mut(), further.gripper_open)?;
             }
         }
         result.observations.push(observation);

@@ -246,7 +246,7 @@ fn run_and_collect_write_what_they_report() {
         serde_json::from_slice(&std::fs::read(perturbed.join("manifest.json")).unwrap()).unwrap();
     assert_eq!(
         manifest["perturbation"],
-        serde_json::json!({"probability": 1.0, "sigma_m": 0.03, "target": "next", "grasp_probability": 0.0})
+        serde_json::json!({"probability": 1.0, "sigma_m": 0.03, "target": "next", "grasp_probability": 0.0, "detours": 1})
     );
     let loaded = flowram::data::load_dataset(&perturbed).unwrap();
     assert_eq!(loaded.episodes[0].proprio.len() / 8, 5, "slide_block's 4 keyframes and one detour");

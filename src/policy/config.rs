@@ -210,6 +210,27 @@ pub struct FlowConfig {
     /// pointer): none.
     #[serde(default)]
     pub goal_weight: f64,
+    /// Where `pointer_weight` asks the position pointer to point: `"keyframe"` (the tokens near
+    /// the keyframe's position) or `"relational"` (with `model.relational_pointer`: near the
+    /// point p* whose relation lands on the keyframe, p* + beta (p* - g) = keyframe, i.e.
+    /// p* = (keyframe + beta g) / (1 + beta), with the model's own beta and g, not
+    /// differentiated). On slide_block's first keyframes the keyframe target puts the pointer on
+    /// the edge of the block on the side to go down on, so the pointer must choose the side
+    /// itself and the relation's shift comes on top of it; the relational target leaves the
+    /// pointer on the block and the side to the relation.
+    #[serde(default)]
+    pub pointer_target: PointerTarget,
+}
+
+/// `flow.pointer_target`: what the position pointer's loss points at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum PointerTarget {
+    /// The tokens near the keyframe's position.
+    #[default]
+    Keyframe,
+    /// The tokens near the point whose relation (`model.relational_pointer`) lands on the keyframe.
+    Relational,
 }
 
 fn pointer_sigma() -> f64 {
@@ -414,6 +435,15 @@ impl PolicyConfig {
                 "flow.pointer_weight",
                 "0 unless model.position_pointer = true (it is the pointer's loss)",
                 self.flow.pointer_weight.to_string(),
+            );
+        }
+        if self.flow.pointer_target == PointerTarget::Relational
+            && !(self.model.relational_pointer && self.flow.pointer_weight > 0.0)
+        {
+            return bad(
+                "flow.pointer_target",
+                "\"keyframe\" unless model.relational_pointer = true and flow.pointer_weight > 0 (the relational target is the pointer loss's, through the relation)",
+                "\"relational\"".to_string(),
             );
         }
         if self.flow.goal_weight > 0.0 && !self.model.instruction_pointer {

@@ -281,6 +281,30 @@ pub fn pointer_loss(
     Ok(soft.mul(log_weights)?.sum(1)?.neg()?.mean_all()?)
 }
 
+/// The position pointer's target under `flow.pointer_target = "relational"`: the point p* whose
+/// relation lands on the keyframe position `target` [B, 3], p* + beta (p* - g) = target, so
+/// p* = (target + beta g) / (1 + beta), with the model's `beta` [B, 1] and instruction-pointer
+/// position `goal` [B, 3] (all normalised), not differentiated. beta is clamped to
+/// [`RELATIONAL_BETA_RANGE`] so that 1 + beta stays away from 0.
+pub fn relational_pointer_target(target: &Tensor, beta: &Tensor, goal: &Tensor) -> Result<Tensor> {
+    let b = target.dim(0)?;
+    if target.dims() != [b, 3] || beta.dims() != [b, 1] || goal.dims() != [b, 3] {
+        return Err(PolicyError::Invalid(format!(
+            "relational_pointer_target: target {:?}, beta {:?} and goal {:?} must be [B, 3], [B, 1], [B, 3]",
+            target.dims(),
+            beta.dims(),
+            goal.dims()
+        )));
+    }
+    let (lo, hi) = RELATIONAL_BETA_RANGE;
+    let beta = beta.detach().clamp(lo, hi)?;
+    let numerator = target.add(&goal.detach().broadcast_mul(&beta)?)?;
+    Ok(numerator.broadcast_div(&beta.affine(1.0, 1.0)?)?)
+}
+
+/// The range beta is clamped to in [`relational_pointer_target`].
+pub const RELATIONAL_BETA_RANGE: (f32, f32) = (-0.5, 4.0);
+
 /// Euler integration of the learned velocity field from noise to an action
 /// (Algorithm 2, accumulating): `a <- a + v(a, k/K) / K` for `k = 0..K`.
 ///
@@ -321,6 +345,28 @@ mod tests {
 
     fn t2(values: &[f32], rows: usize) -> Tensor {
         Tensor::from_slice(values, (rows, values.len() / rows), &Device::Cpu).unwrap()
+    }
+
+    #[test]
+    fn the_relational_pointer_target_is_the_point_whose_relation_lands_on_the_keyframe() {
+        let d = Device::Cpu;
+        let target = Tensor::new(&[[0.1f32, -0.2, 0.3], [0.5, 0.5, 0.5]], &d).unwrap();
+        let goal = Tensor::new(&[[0.4f32, 0.2, -0.1], [0.0, 0.0, 0.0]], &d).unwrap();
+        let beta = Tensor::new(&[[0.5f32], [0.0]], &d).unwrap();
+        let p = relational_pointer_target(&target, &beta, &goal).unwrap();
+        // p + beta (p - g) recovers the target; beta = 0 leaves it as it was.
+        let back = p.add(&p.sub(&goal).unwrap().broadcast_mul(&beta).unwrap()).unwrap();
+        let (back, target) = (back.to_vec2::<f32>().unwrap(), target.to_vec2::<f32>().unwrap());
+        for (r, t) in back.iter().flatten().zip(target.iter().flatten()) {
+            assert!((r - t).abs() < 1e-6, "{r} against {t}");
+        }
+        assert_eq!(p.to_vec2::<f32>().unwrap()[1], vec![0.5, 0.5, 0.5]);
+        // beta near -1 is clamped: the target stays finite.
+        let near = Tensor::new(&[[-0.999f32], [-3.0]], &d).unwrap();
+        let p = relational_pointer_target(&Tensor::new(&[[0.1f32, 0.1, 0.1], [0.1, 0.1, 0.1]], &d).unwrap(), &near, &goal);
+        assert!(p.unwrap().to_vec2::<f32>().unwrap().iter().flatten().all(|v| v.is_finite() && v.abs() < 2.0));
+        let wrong = relational_pointer_target(&goal, &goal, &goal);
+        assert!(wrong.unwrap_err().to_string().contains("relational_pointer_target"));
     }
 
     #[test]

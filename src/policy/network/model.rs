@@ -192,6 +192,9 @@ pub struct Velocity {
     /// the semantic tokens, one row per observation [B_obs, N1] (the candidates are the prefix
     /// inputs' `semantic_xyz`; for `flow.goal_weight`).
     pub goal: Option<Tensor>,
+    /// With `model.relational_pointer`: beta [B, 1] and the instruction pointer's position g
+    /// [B, 3] of the position p + beta (p - g) + offset (for `flow.pointer_target`).
+    pub relation: Option<(Tensor, Tensor)>,
 }
 
 /// The prefix of a batch: tokens [B, Lt + N1 (+ 1 pointer), C], the condition [B, C], the
@@ -618,6 +621,7 @@ impl FlowRam {
     ) -> Result<Velocity> {
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
+        let mut relation_used = None;
         match (&self.position_pointer, pointer) {
             (Some(p), Some((memory, geometric, xyz))) => {
                 let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last, pointer_temperature)?;
@@ -632,6 +636,7 @@ impl FlowRam {
                     })?;
                     let beta = relation.forward(last)?; // [B, 1]
                     position = position.add(&pointed.sub(goal)?.broadcast_mul(&beta)?)?;
+                    relation_used = Some((beta, goal.clone()));
                 }
                 attention = Some((log_weights, candidates));
             }
@@ -646,7 +651,7 @@ impl FlowRam {
         }
         let velocity = Tensor::cat(&[position, self.rotation_head.forward(last)?], 1)?;
         let open_logit = self.open_head.forward(last)?.squeeze(1)?;
-        Ok(Velocity { velocity, open_logit, pointer: attention, goal: None })
+        Ok(Velocity { velocity, open_logit, pointer: attention, goal: None, relation: relation_used })
     }
 
     /// Training forward, differentiable: the whole sequence in one pass. The suffix may hold K

@@ -20,9 +20,11 @@ use super::lr_schedule::LearningRateSchedule;
 use super::rng::step_rng_for;
 use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
 use crate::policy::checkpoint::store::CheckpointStore;
-use crate::policy::config::PolicyConfig;
+use crate::policy::config::{PointerTarget, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
-use crate::policy::flow::{LossWeights, flow_matching_loss, flow_training_sample, pointer_loss};
+use crate::policy::flow::{
+    LossWeights, flow_matching_loss, flow_training_sample, pointer_loss, relational_pointer_target,
+};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, suffix_inputs};
 use crate::policy::network::init::seeded_var_builder;
 use crate::policy::network::model::{FlowRam, device};
@@ -141,7 +143,12 @@ impl Trainer {
         if let Some((log_weights, candidates)) = &out.pointer
             && config.flow.pointer_weight > 0.0
         {
-            let position = a1.narrow(1, 0, 3)?;
+            let mut position = a1.narrow(1, 0, 3)?;
+            if config.flow.pointer_target == PointerTarget::Relational
+                && let Some((beta, goal)) = &out.relation
+            {
+                position = relational_pointer_target(&position, beta, goal)?;
+            }
             let pointer = pointer_loss(log_weights, candidates, &position, half_extent, config.flow.pointer_sigma)?;
             total = total.add(&pointer.affine(config.flow.pointer_weight, 0.0)?)?;
         }

@@ -4,7 +4,7 @@ use std::sync::OnceLock;
 
 use flowram::data::Episode;
 use flowram::policy::PolicyError;
-use flowram::policy::config::{Consensus, InstructionPooling, PointerSharpening, PolicyConfig};
+use flowram::policy::config::{Consensus, InstructionPooling, PointerSharpening, PointerTarget, PolicyConfig};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
@@ -458,6 +458,46 @@ fn the_relational_pointer_needs_both_pointers_starts_as_one_pointer_and_learns_i
 }
 
 #[test]
+fn the_relational_pointer_target_needs_the_relation_and_moves_the_pointer_loss_once_beta_is_learnt() {
+    let mut config = tiny_config();
+    config.model.position_pointer = true;
+    config.model.instruction_pointer = true;
+    config.model.relational_pointer = true;
+    config.flow.goal_weight = 1.0;
+    config.flow.pointer_weight = 1.0;
+    config.train.batch = 8;
+    config.validate().unwrap();
+    let mut relational = config.clone();
+    relational.flow.pointer_target = PointerTarget::Relational;
+    relational.validate().unwrap();
+    for broken in [
+        PolicyConfig {
+            flow: flowram::policy::config::FlowConfig { pointer_weight: 0.0, ..relational.flow.clone() },
+            ..relational.clone()
+        },
+        PolicyConfig {
+            model: flowram::policy::config::ModelConfig { relational_pointer: false, ..relational.model.clone() },
+            ..relational.clone()
+        },
+    ] {
+        let err = broken.validate().unwrap_err().to_string();
+        assert!(err.contains("flow.pointer_target") && err.contains("relational_pointer"), "{err}");
+    }
+    // The same seed: the first step's target is the keyframe in both (beta starts at zero), so the
+    // same loss; once beta has moved, the relational target moves the pointer's loss.
+    let losses = |config: &PolicyConfig| -> Vec<StepLoss> {
+        let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
+        let mut text = text();
+        let mut trainer = Trainer::new(config).unwrap();
+        (0..6).map(|_| trainer.train_step(&mut data, &mut text).unwrap()).collect()
+    };
+    let (keyframe, moved) = (losses(&config), losses(&relational));
+    assert_eq!(keyframe[0], moved[0]);
+    assert!(moved.iter().all(|l| l.total.is_finite()), "{moved:?}");
+    assert!(keyframe.iter().zip(&moved).skip(1).any(|(a, b)| a.total != b.total), "{keyframe:?} against {moved:?}");
+}
+
+#[test]
 fn configs_written_before_the_conditioning_options_load_with_the_papers_choices() {
     // A checkpoint's config.json from before model.instruction_adaln, flow.prediction and
     // flow.time_sampling existed: it must load, and mean what it meant then.
@@ -474,6 +514,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("flow", "pointer_sigma"),
         ("flow", "consensus"),
         ("flow", "pointer_sharpening"),
+        ("flow", "pointer_target"),
         ("observation", "proprio_history"),
     ] {
         json[section].as_object_mut().unwrap().remove(key);
@@ -488,6 +529,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.observation.proprio_history, 1);
     assert_eq!(config.flow.consensus, Consensus::Medoid);
     assert_eq!(config.flow.pointer_sharpening, PointerSharpening::OFF);
+    assert_eq!(config.flow.pointer_target, PointerTarget::Keyframe);
     // a command line's --pointer-temperature replaces the temperature only, and only when given
     let set = PointerSharpening { temperature: 0.5, until: 0.3 };
     assert_eq!(set.with_temperature(None), set);

@@ -363,7 +363,8 @@ mod tests {
         assert_eq!(p.to_vec2::<f32>().unwrap()[1], vec![0.5, 0.5, 0.5]);
         // beta near -1 is clamped: the target stays finite.
         let near = Tensor::new(&[[-0.999f32], [-3.0]], &d).unwrap();
-        let p = relational_pointer_target(&Tensor::new(&[[0.1f32, 0.1, 0.1], [0.1, 0.1, 0.1]], &d).unwrap(), &near, &goal);
+        let p =
+            relational_pointer_target(&Tensor::new(&[[0.1f32, 0.1, 0.1], [0.1, 0.1, 0.1]], &d).unwrap(), &near, &goal);
         assert!(p.unwrap().to_vec2::<f32>().unwrap().iter().flatten().all(|v| v.is_finite() && v.abs() < 2.0));
         let wrong = relational_pointer_target(&goal, &goal, &goal);
         assert!(wrong.unwrap_err().to_string().contains("relational_pointer_target"));

@@ -144,9 +144,14 @@ impl Trainer {
             && config.flow.pointer_weight > 0.0
         {
             let mut position = a1.narrow(1, 0, 3)?;
-            if config.flow.pointer_target == PointerTarget::Relational
-                && let Some((beta, goal)) = &out.relation
-            {
+            if config.flow.pointer_target == PointerTarget::Relational {
+                let (beta, goal) = out.relation.as_ref().ok_or_else(|| {
+                    PolicyError::Invalid(
+                        "flow.pointer_target = \"relational\" but the model returned no relation \
+                         (model.relational_pointer must be on)"
+                            .into(),
+                    )
+                })?;
                 position = relational_pointer_target(&position, beta, goal)?;
             }
             let pointer = pointer_loss(log_weights, candidates, &position, half_extent, config.flow.pointer_sigma)?;

@@ -217,7 +217,8 @@ pub struct FlowConfig {
     /// differentiated). On slide_block's first keyframes the keyframe target puts the pointer on
     /// the edge of the block on the side to go down on, so the pointer must choose the side
     /// itself and the relation's shift comes on top of it; the relational target leaves the
-    /// pointer on the block and the side to the relation.
+    /// pointer on the block and the side to the relation. Measured harmful on slide_block
+    /// (`docs/experiments.md`, session 26: 10/50 against 17/50); the default stays "keyframe".
     #[serde(default)]
     pub pointer_target: PointerTarget,
 }

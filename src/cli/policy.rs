@@ -6,7 +6,7 @@ use anyhow::bail;
 use clap::Args;
 use flowram::policy::PolicyError;
 use flowram::policy::config::{Consensus, PolicyConfig};
-use flowram::policy::inference::{Policy, SamplingOptions, consensus};
+use flowram::policy::inference::{PointerReadout, Policy, Samples, SamplingOptions, consensus};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::{KeyframePose, Observation};
 use flowram::policy::training::data::TrainingData;
@@ -130,6 +130,10 @@ struct Prediction {
     position_error_mm: f32,
     rotation_error_deg: f32,
     gripper_correct: bool,
+    /// The sample's pointers at its last Euler step (world frame, m); absent without
+    /// `model.position_pointer`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pointer: Option<PointerReadout>,
 }
 
 #[derive(Serialize)]
@@ -163,19 +167,21 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         consensus: args.consensus.unwrap_or(policy.config().flow.consensus),
         sharpening: policy.config().flow.pointer_sharpening.with_temperature(args.pointer_temperature),
     };
-    let keyframes = policy.predict(&observation, &options)?;
+    let Samples { poses: keyframes, pointers } = policy.predict_explained(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();
     let chosen = consensus(&keyframes, options.consensus);
     let executed = keyframes.iter().position(|k| Some(*k) == chosen).unwrap_or(0);
     let predictions: Vec<Prediction> = keyframes
         .into_iter()
-        .map(|k| {
+        .enumerate()
+        .map(|(i, k)| {
             let (p, r) = k.error_to(&recorded);
             Prediction {
                 keyframe: k,
                 position_error_mm: p * 1e3,
                 rotation_error_deg: r.to_degrees(),
                 gripper_correct: k.gripper_open == recorded.gripper_open,
+                pointer: pointers.get(i).copied(),
             }
         })
         .collect();
@@ -228,6 +234,14 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
             p.rotation_error_deg,
             if p.gripper_correct { "right" } else { "wrong" }
         );
+        if let Some(r) = &p.pointer {
+            let v = |x: [f32; 3]| format!("[{:.4}, {:.4}, {:.4}]", x[0], x[1], x[2]);
+            let relation = match (r.goal, r.beta) {
+                (Some(g), Some(b)) => format!(", instruction pointer {} m, beta {b:.3}", v(g)),
+                _ => String::new(),
+            };
+            println!("             position pointer {} m{relation}", v(r.pointed));
+        }
     }
     println!("  {:.0} ms", seconds * 1e3);
     Ok(())

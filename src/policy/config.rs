@@ -221,6 +221,26 @@ pub struct FlowConfig {
     /// (`docs/experiments.md`, session 26: 10/50 against 17/50); the default stays "keyframe".
     #[serde(default)]
     pub pointer_target: PointerTarget,
+    /// How `goal_weight`'s soft target measures nearness to the episode's last keyframe:
+    /// `"keyframe"` (3-D distance) or `"under"` (horizontal distance only: the tokens under the
+    /// goal, whatever their height). slide_block's last keyframe is 10 cm above the end of the
+    /// push; in 3-D the nearest tokens are the block's far edge, not the named zone 12 cm below,
+    /// so the instruction pointer learns to point at the block (`predict --json` shows g 2 cm
+    /// from the block's centre on held-out episodes, session 27) and the relation p + beta (p - g)
+    /// cannot say "opposite the named zone".
+    #[serde(default)]
+    pub goal_target: GoalTarget,
+}
+
+/// `flow.goal_target`: how the instruction pointer's loss measures nearness to the goal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GoalTarget {
+    /// The tokens near the episode's last keyframe (3-D distance).
+    #[default]
+    Keyframe,
+    /// The tokens under it (horizontal distance only).
+    Under,
 }
 
 /// `flow.pointer_target`: what the position pointer's loss points at.
@@ -445,6 +465,13 @@ impl PolicyConfig {
                 "flow.pointer_target",
                 "\"keyframe\" unless model.relational_pointer = true and flow.pointer_weight > 0 (the relational target is the pointer loss's, through the relation)",
                 "\"relational\"".to_string(),
+            );
+        }
+        if self.flow.goal_target == GoalTarget::Under && self.flow.goal_weight <= 0.0 {
+            return bad(
+                "flow.goal_target",
+                "\"keyframe\" unless flow.goal_weight > 0 (it shapes the instruction pointer's loss)",
+                "\"under\"".to_string(),
             );
         }
         if self.flow.goal_weight > 0.0 && !self.model.instruction_pointer {

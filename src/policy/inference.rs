@@ -69,6 +69,25 @@ pub struct SampleProfile {
     pub network_ms: f64,
 }
 
+/// What a sample's pointers said at its last Euler step (world frame, metres): the position
+/// pointer's pointed position p, and with `model.relational_pointer` the instruction pointer's
+/// position g and beta of the position p + beta (p - g) + offset. A diagnostic (`predict
+/// --json`): which part of the readout a wrong keyframe came from.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+pub struct PointerReadout {
+    pub pointed: [f32; 3],
+    pub goal: Option<[f32; 3]>,
+    pub beta: Option<f32>,
+}
+
+/// Keyframe samples of one observation, with their pointers' readouts (empty without
+/// `model.position_pointer`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Samples {
+    pub poses: Vec<KeyframePose>,
+    pub pointers: Vec<PointerReadout>,
+}
+
 /// A model ready to predict.
 pub struct Policy {
     pub model: FlowRam,
@@ -151,7 +170,7 @@ impl Policy {
         options: &SamplingOptions,
         profile: &mut SampleProfile,
     ) -> Result<Vec<KeyframePose>> {
-        in_pool(|| self.sample_in_pool(prepared, encoded, options, profile))
+        in_pool(|| self.sample_in_pool(prepared, encoded, options, profile)).map(|s| s.poses)
     }
 
     fn sample_in_pool(
@@ -160,7 +179,7 @@ impl Policy {
         encoded: &EncodedObservation,
         options: &SamplingOptions,
         profile: &mut SampleProfile,
-    ) -> Result<Vec<KeyframePose>> {
+    ) -> Result<Samples> {
         let config = self.model.config();
         if options.steps == 0 || options.samples == 0 {
             return Err(PolicyError::Invalid(format!(
@@ -176,6 +195,7 @@ impl Policy {
         let refs: Vec<(&PreparedObservation, Augmentation)> = vec![(prepared, Augmentation::NONE); s];
         let shared = vec![0usize; s];
         let mut open = None;
+        let mut last_pointers = None;
         let a = euler_sample(a0, options.steps, |a, t| {
             let rows: Vec<[f32; ACTION_DIMS]> =
                 a.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
@@ -186,17 +206,25 @@ impl Policy {
             profile.selection_ms += (t1 - t0).as_secs_f64() * 1e3;
             profile.network_ms += t1.elapsed().as_secs_f64() * 1e3;
             open = Some(out.open_logit);
+            last_pointers = Some((out.pointer, out.relation));
             config.flow.prediction.velocity(out.velocity, a, t)
         })?;
         // The gripper logit of the last step (closest to the data).
         let open = open.ok_or_else(|| PolicyError::Invalid("sampling ran no Euler step".into()))?;
         let rows = a.to_vec2::<f32>()?;
         let open = open.to_vec1::<f32>()?;
-        Ok(rows
+        let poses = rows
             .iter()
             .zip(open)
             .map(|(r, o)| KeyframePose::from_action(&std::array::from_fn(|i| r[i]), o, &config.observation.workspace))
-            .collect())
+            .collect();
+        let pointers = match last_pointers {
+            Some((Some((log_weights, candidates)), relation)) => {
+                pointer_readouts(&log_weights, &candidates, relation.as_ref(), &config.observation.workspace)?
+            }
+            _ => Vec::new(),
+        };
+        Ok(Samples { poses, pointers })
     }
 
     /// Observation in, one keyframe out: the [`consensus`] of `options.samples` samples (with 1
@@ -208,12 +236,43 @@ impl Policy {
 
     /// Observation in, keyframes out.
     pub fn predict(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
+        self.predict_explained(observation, options).map(|s| s.poses)
+    }
+
+    /// [`Self::predict`], with what each sample's pointers said at its last Euler step.
+    pub fn predict_explained(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<Samples> {
         in_pool(|| {
             let prepared = self.prepare(observation)?;
             let encoded = self.encode(&prepared)?;
-            self.sample(&prepared, &encoded, options)
+            self.sample_in_pool(&prepared, &encoded, options, &mut SampleProfile::default())
         })
     }
+}
+
+/// The pointers' readouts of a batch, in the world frame: p = the attention [B, N] (log) over
+/// the candidates' normalised positions [B, N, 3]; with `relation`, beta [B, 1] and g [B, 3]
+/// (normalised).
+fn pointer_readouts(
+    log_weights: &candle_core::Tensor,
+    candidates: &candle_core::Tensor,
+    relation: Option<&(candle_core::Tensor, candle_core::Tensor)>,
+    workspace: &crate::policy::scene::workspace::WorkspaceBounds,
+) -> Result<Vec<PointerReadout>> {
+    let pointed = log_weights.exp()?.unsqueeze(1)?.matmul(candidates)?.squeeze(1)?.to_vec2::<f32>()?;
+    let (betas, goals) = match relation {
+        Some((beta, goal)) => (Some(beta.flatten_all()?.to_vec1::<f32>()?), Some(goal.to_vec2::<f32>()?)),
+        None => (None, None),
+    };
+    let world = |r: &[f32]| workspace.denormalize(std::array::from_fn(|i| r[i]));
+    Ok(pointed
+        .iter()
+        .enumerate()
+        .map(|(i, p)| PointerReadout {
+            pointed: world(p),
+            goal: goals.as_ref().map(|g| world(&g[i])),
+            beta: betas.as_ref().map(|b| b[i]),
+        })
+        .collect())
 }
 
 /// Metres: samples closer than this count as one mode in [`Consensus::Mode`] (half a 4 cm block;

@@ -20,7 +20,7 @@ use super::lr_schedule::LearningRateSchedule;
 use super::rng::step_rng_for;
 use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
 use crate::policy::checkpoint::store::CheckpointStore;
-use crate::policy::config::{PointerTarget, PolicyConfig};
+use crate::policy::config::{GoalTarget, PointerTarget, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{
     LossWeights, flow_matching_loss, flow_training_sample, pointer_loss, relational_pointer_target,
@@ -161,7 +161,12 @@ impl Trainer {
             && config.flow.goal_weight > 0.0
         {
             let goal = Tensor::from_vec(goals, (b, 3), &device())?;
-            let loss = pointer_loss(log_weights, &prefix.semantic_xyz, &goal, half_extent, config.flow.pointer_sigma)?;
+            let extent = match config.flow.goal_target {
+                GoalTarget::Keyframe => half_extent,
+                // Horizontal distance: a zero scale on z.
+                GoalTarget::Under => [half_extent[0], half_extent[1], 0.0],
+            };
+            let loss = pointer_loss(log_weights, &prefix.semantic_xyz, &goal, extent, config.flow.pointer_sigma)?;
             total = total.add(&loss.affine(config.flow.goal_weight, 0.0)?)?;
         }
         self.optimizer.backward_step(&total)?;

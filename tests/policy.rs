@@ -498,6 +498,68 @@ fn the_relational_pointer_target_needs_the_relation_and_moves_the_pointer_loss_o
 }
 
 #[test]
+fn the_goal_under_the_keyframe_needs_the_goal_loss_and_changes_it_from_the_first_step() {
+    use flowram::policy::config::GoalTarget;
+    let mut config = tiny_config();
+    config.model.position_pointer = true;
+    config.model.instruction_pointer = true;
+    config.model.relational_pointer = true;
+    config.flow.goal_weight = 1.0;
+    config.flow.pointer_weight = 1.0;
+    config.train.batch = 8;
+    config.validate().unwrap();
+    let mut under = config.clone();
+    under.flow.goal_target = GoalTarget::Under;
+    under.validate().unwrap();
+    let mut no_goal = under.clone();
+    no_goal.flow.goal_weight = 0.0;
+    let err = no_goal.validate().unwrap_err().to_string();
+    assert!(err.contains("flow.goal_target") && err.contains("goal_weight"), "{err}");
+    // The same seed and weights: only the goal loss's target differs, from the first step on.
+    let first = |config: &PolicyConfig| -> StepLoss {
+        let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
+        let mut text = text();
+        Trainer::new(config).unwrap().train_step(&mut data, &mut text).unwrap()
+    };
+    let (keyframe, horizontal) = (first(&config), first(&under));
+    assert!(horizontal.total.is_finite(), "{horizontal:?}");
+    assert_eq!(keyframe.cfm, horizontal.cfm);
+    assert_ne!(keyframe.total, horizontal.total);
+}
+
+#[test]
+fn predict_explained_reads_out_each_samples_pointers_without_changing_the_samples() {
+    let mut config = tiny_config();
+    config.model.position_pointer = true;
+    config.model.instruction_pointer = true;
+    config.model.relational_pointer = true;
+    config.flow.goal_weight = 1.0;
+    config.flow.pointer_weight = 1.0;
+    config.validate().unwrap();
+    let observation = Observation::from_episode(demonstration(), 0).unwrap();
+    let options = SamplingOptions::new(2, 3, 7);
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let explained = policy.predict_explained(&observation, &options).unwrap();
+    assert_eq!(explained.poses, policy.predict(&observation, &options).unwrap());
+    assert_eq!(explained.pointers.len(), 3);
+    let (lo, hi) = (config.observation.workspace.min(), config.observation.workspace.max());
+    for r in &explained.pointers {
+        // p and g are attention-weighted means of token positions: inside the box.
+        for x in [r.pointed, r.goal.expect("the relational pointer reads out g")] {
+            assert!((0..3).all(|i| x[i] >= lo[i] - 1e-4 && x[i] <= hi[i] + 1e-4), "{x:?} outside {lo:?}..{hi:?}");
+        }
+        assert!(r.beta.is_some_and(f32::is_finite), "{r:?}");
+    }
+    // Without the position pointer there is nothing to read out.
+    let mut plain = tiny_config();
+    plain.model.position_pointer = false;
+    plain.flow.pointer_weight = 0.0;
+    plain.validate().unwrap();
+    let mut policy = Policy::random(&plain, text()).unwrap();
+    assert!(policy.predict_explained(&observation, &options).unwrap().pointers.is_empty());
+}
+
+#[test]
 fn configs_written_before_the_conditioning_options_load_with_the_papers_choices() {
     // A checkpoint's config.json from before model.instruction_adaln, flow.prediction and
     // flow.time_sampling existed: it must load, and mean what it meant then.
@@ -515,6 +577,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("flow", "consensus"),
         ("flow", "pointer_sharpening"),
         ("flow", "pointer_target"),
+        ("flow", "goal_target"),
         ("observation", "proprio_history"),
     ] {
         json[section].as_object_mut().unwrap().remove(key);
@@ -530,6 +593,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.consensus, Consensus::Medoid);
     assert_eq!(config.flow.pointer_sharpening, PointerSharpening::OFF);
     assert_eq!(config.flow.pointer_target, PointerTarget::Keyframe);
+    assert_eq!(config.flow.goal_target, flowram::policy::config::GoalTarget::Keyframe);
     // a command line's --pointer-temperature replaces the temperature only, and only when given
     let set = PointerSharpening { temperature: 0.5, until: 0.3 };
     assert_eq!(set.with_temperature(None), set);

@@ -140,6 +140,16 @@ pub struct ModelConfig {
     /// alone did not learn (docs/experiments.md, sessions 4-11). Off (the paper): one pointer.
     #[serde(default)]
     pub relational_pointer: bool,
+    /// The rotation also reads the pointers' relation: the rotation head's output plus a small
+    /// MLP of g - p (needs `relational_pointer`; the MLP's output layer is zero at
+    /// initialisation, so training starts as without it). slide_block's gripper yaw is the push
+    /// direction (0 deg along x, 90 deg along y), the direction from the block to the named zone;
+    /// the relation gives the position that direction, but the rotation head sees only the action
+    /// token, and on the held-out y pushes it predicted the x pushes' yaw in most samples,
+    /// 81-92 deg off (docs/experiments.md, session 27). Off (the paper): the rotation from the
+    /// action token alone.
+    #[serde(default)]
+    pub relation_rotation: bool,
 }
 
 /// How the instruction is pooled into one vector for the instruction AdaLN
@@ -448,6 +458,13 @@ impl PolicyConfig {
             return bad(
                 "model.relational_pointer",
                 "false unless model.position_pointer = true and model.instruction_pointer = true (it relates their two pointed positions)",
+                "true".to_string(),
+            );
+        }
+        if self.model.relation_rotation && !self.model.relational_pointer {
+            return bad(
+                "model.relation_rotation",
+                "false unless model.relational_pointer = true (it reads the relation's g - p)",
                 "true".to_string(),
             );
         }

@@ -75,10 +75,21 @@ impl Mlp {
         Ok(Self { a: candle_nn::linear(input, hidden, vb.pp("0"))?, b: candle_nn::linear(hidden, output, vb.pp("1"))? })
     }
 
+    /// An MLP whose output layer is zero at initialisation (a branch that starts switched off).
+    fn new_zero_output(input: usize, hidden: usize, output: usize, vb: VarBuilder) -> Result<Self> {
+        let out = vb.pp("1");
+        let w = out.get_with_hints((output, hidden), "weight", candle_nn::Init::Const(0.0))?;
+        let b = out.get_with_hints(output, "bias", candle_nn::Init::Const(0.0))?;
+        Ok(Self { a: candle_nn::linear(input, hidden, vb.pp("0"))?, b: Linear::new(w, Some(b)) })
+    }
+
     fn forward(&self, x: &Tensor) -> Result<Tensor> {
         Ok(self.b.forward(&candle_nn::ops::silu(&self.a.forward(x)?)?)?)
     }
 }
+
+/// Hidden width of `model.relation_rotation`'s MLP of g - p.
+const RELATION_ROTATION_HIDDEN: usize = 64;
 
 /// Batched inputs of the observation side (prefix), on the CPU.
 #[derive(Debug, Clone)]
@@ -356,6 +367,8 @@ pub struct FlowRam {
     position_pointer: Option<PositionPointer>,
     /// `model.relational_pointer`: beta of the position p + beta * (p - g) + offset.
     relation: Option<Linear>,
+    /// `model.relation_rotation`: the rotation's part read from g - p.
+    relation_rotation: Option<Mlp>,
     /// `model.point_colour`: raw mean colour of a feature pixel -> C.
     colour_mlp: Option<Mlp>,
     time_mlp: Mlp,
@@ -436,6 +449,11 @@ impl FlowRam {
             } else {
                 None
             },
+            relation_rotation: if config.model.relation_rotation {
+                Some(Mlp::new_zero_output(3, RELATION_ROTATION_HIDDEN, 6, vb.pp("relation_rotation"))?)
+            } else {
+                None
+            },
             colour_mlp: if config.model.point_colour { Some(Mlp::new(3, c, c, vb.pp("colour_mlp"))?) } else { None },
             time_mlp: Mlp::new(c, c, c, vb.pp("time_mlp"))?,
             mamba: MambaStack::new(&mamba_config, vb.pp("mamba"))?,
@@ -488,6 +506,9 @@ impl FlowRam {
         let mut heads = 2.0 * (3.0 * (c * c) as f64 + (c * (3 + 6 + 1)) as f64);
         if self.relation.is_some() {
             heads += 2.0 * c as f64 + 9.0;
+        }
+        if self.relation_rotation.is_some() {
+            heads += 2.0 * ((3 + 6) * RELATION_ROTATION_HIDDEN) as f64;
         }
         let mut once_per_observation = 0.0;
         if self.pooling_query.is_some() {
@@ -622,6 +643,7 @@ impl FlowRam {
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
         let mut relation_used = None;
+        let mut rotation = self.rotation_head.forward(last)?;
         match (&self.position_pointer, pointer) {
             (Some(p), Some((memory, geometric, xyz))) => {
                 let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last, pointer_temperature)?;
@@ -636,6 +658,9 @@ impl FlowRam {
                     })?;
                     let beta = relation.forward(last)?; // [B, 1]
                     position = position.add(&pointed.sub(goal)?.broadcast_mul(&beta)?)?;
+                    if let Some(r) = &self.relation_rotation {
+                        rotation = rotation.add(&r.forward(&goal.sub(&pointed)?)?)?;
+                    }
                     relation_used = Some((beta, goal.clone()));
                 }
                 attention = Some((log_weights, candidates));
@@ -649,7 +674,7 @@ impl FlowRam {
                 ));
             }
         }
-        let velocity = Tensor::cat(&[position, self.rotation_head.forward(last)?], 1)?;
+        let velocity = Tensor::cat(&[position, rotation], 1)?;
         let open_logit = self.open_head.forward(last)?.squeeze(1)?;
         Ok(Velocity { velocity, open_logit, pointer: attention, goal: None, relation: relation_used })
     }

@@ -528,6 +528,41 @@ fn the_goal_under_the_keyframe_needs_the_goal_loss_and_changes_it_from_the_first
 }
 
 #[test]
+fn the_rotation_reading_the_relation_needs_it_starts_switched_off_and_learns() {
+    let mut config = tiny_config();
+    config.model.position_pointer = true;
+    config.model.instruction_pointer = true;
+    config.model.relational_pointer = false;
+    config.model.relation_rotation = true;
+    config.flow.goal_weight = 1.0;
+    config.flow.pointer_weight = 1.0;
+    config.train.batch = 8;
+    let err = config.validate().unwrap_err().to_string();
+    assert!(err.contains("model.relation_rotation") && err.contains("relational_pointer"), "{err}");
+    config.model.relational_pointer = true;
+    config.validate().unwrap();
+    let mut without = config.clone();
+    without.model.relation_rotation = false;
+    // The output layer starts at zero: the same samples as without the branch (initial values
+    // are keyed by the variable's name, so every other variable starts the same).
+    let observation = Observation::from_episode(demonstration(), 0).unwrap();
+    let options = SamplingOptions::new(2, 2, 5);
+    let samples =
+        |config: &PolicyConfig| Policy::random(config, text()).unwrap().predict(&observation, &options).unwrap();
+    assert_eq!(samples(&config), samples(&without));
+    let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
+    let mut text = text();
+    let mut trainer = Trainer::new(&config).unwrap();
+    for _ in 0..20 {
+        trainer.train_step(&mut data, &mut text).unwrap();
+    }
+    let vars = trainer.varmap.data().lock().unwrap();
+    let weight = vars.get("relation_rotation.1.weight").expect("the branch's output layer is a trained variable");
+    let norm: f32 = weight.as_tensor().sqr().unwrap().sum_all().unwrap().to_scalar().unwrap();
+    assert!(norm > 0.0, "the branch's output layer is still zero after 20 steps");
+}
+
+#[test]
 fn predict_explained_reads_out_each_samples_pointers_without_changing_the_samples() {
     let mut config = tiny_config();
     config.model.position_pointer = true;

@@ -585,6 +585,9 @@ fn predict_explained_reads_out_each_samples_pointers_without_changing_the_sample
         }
         assert!(r.beta.is_some_and(f32::is_finite), "{r:?}");
     }
+    // g reads the observation only (the instruction pointer is in the prefix): one g for all samples.
+    let goals: Vec<_> = explained.pointers.iter().map(|r| r.goal).collect();
+    assert!(goals.windows(2).all(|w| w[0] == w[1]), "{goals:?}");
     // Without the position pointer there is nothing to read out.
     let mut plain = tiny_config();
     plain.model.position_pointer = false;
@@ -607,6 +610,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("model", "position_pointer"),
         ("model", "point_colour"),
         ("model", "relational_pointer"),
+        ("model", "relation_rotation"),
         ("flow", "pointer_weight"),
         ("flow", "pointer_sigma"),
         ("flow", "consensus"),
@@ -622,7 +626,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.prediction, flowram::policy::flow::Prediction::Velocity);
     assert_eq!(config.flow.time_sampling, flowram::policy::flow::FlowTimeSampling::Uniform);
     assert!(!config.model.instruction_pointer && !config.model.position_pointer && !config.model.point_colour);
-    assert!(!config.model.relational_pointer);
+    assert!(!config.model.relational_pointer && !config.model.relation_rotation);
     assert_eq!((config.flow.pointer_weight, config.flow.pointer_sigma), (0.0, 0.02));
     assert_eq!(config.observation.proprio_history, 1);
     assert_eq!(config.flow.consensus, Consensus::Medoid);

@@ -146,8 +146,9 @@ pub struct ModelConfig {
     /// direction (0 deg along x, 90 deg along y), the direction from the block to the named zone;
     /// the relation gives the position that direction, but the rotation head sees only the action
     /// token, and on the held-out y pushes it predicted the x pushes' yaw in most samples,
-    /// 81-92 deg off (docs/experiments.md, session 27). Off (the paper): the rotation from the
-    /// action token alone.
+    /// 81-92 deg off (docs/experiments.md, session 27). g - p is not detached: the rotation's
+    /// loss also trains both pointers. With `flow.pointer_sharpening` the p it reads at inference
+    /// is sharper than in training. Off (the paper): the rotation from the action token alone.
     #[serde(default)]
     pub relation_rotation: bool,
 }

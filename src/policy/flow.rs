@@ -348,6 +348,31 @@ mod tests {
     }
 
     #[test]
+    fn a_zero_scale_on_z_measures_the_pointer_target_horizontally() {
+        // Candidates (normalised, 0.3 m per unit): 0 straight under the target 24 cm below, 1
+        // beside it at its height 15 cm away, 2 far away. In 3-D the one beside it is the
+        // target; horizontally the one under it.
+        let d = Device::Cpu;
+        let candidates = Tensor::new(&[[[0.0f32, 0.0, -0.8], [0.5, 0.0, 0.0], [0.9, 0.9, 0.0]]], &d).unwrap();
+        let target = Tensor::new(&[[0.0f32, 0.0, 0.0]], &d).unwrap();
+        let loss = |on: usize, extent: [f32; 3]| {
+            let mut logits = [-20.0f32; 3];
+            logits[on] = 20.0;
+            let log_weights = candle_nn::ops::log_softmax(&Tensor::new(&[logits], &d).unwrap(), 1).unwrap();
+            pointer_loss(&log_weights, &candidates, &target, extent, 0.02).unwrap().to_scalar::<f32>().unwrap()
+        };
+        let (all, horizontal) = ([0.3f32, 0.3, 0.3], [0.3f32, 0.3, 0.0]);
+        assert!(loss(1, all) < 0.01 && loss(0, all) > 1.0, "3-D: {} {}", loss(1, all), loss(0, all));
+        assert!(
+            loss(0, horizontal) < 0.01 && loss(1, horizontal) > 1.0,
+            "{} {}",
+            loss(0, horizontal),
+            loss(1, horizontal)
+        );
+        assert!([0, 1, 2].iter().all(|&i| loss(i, horizontal).is_finite()));
+    }
+
+    #[test]
     fn the_relational_pointer_target_is_the_point_whose_relation_lands_on_the_keyframe() {
         let d = Device::Cpu;
         let target = Tensor::new(&[[0.1f32, -0.2, 0.3], [0.5, 0.5, 0.5]], &d).unwrap();

@@ -76,7 +76,9 @@ pub struct SampleProfile {
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
 pub struct PointerReadout {
     pub pointed: [f32; 3],
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub goal: Option<[f32; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub beta: Option<f32>,
 }
 
@@ -170,7 +172,7 @@ impl Policy {
         options: &SamplingOptions,
         profile: &mut SampleProfile,
     ) -> Result<Vec<KeyframePose>> {
-        in_pool(|| self.sample_in_pool(prepared, encoded, options, profile)).map(|s| s.poses)
+        in_pool(|| self.sample_in_pool(prepared, encoded, options, profile, false)).map(|s| s.poses)
     }
 
     fn sample_in_pool(
@@ -179,6 +181,7 @@ impl Policy {
         encoded: &EncodedObservation,
         options: &SamplingOptions,
         profile: &mut SampleProfile,
+        read_out: bool,
     ) -> Result<Samples> {
         let config = self.model.config();
         if options.steps == 0 || options.samples == 0 {
@@ -219,7 +222,7 @@ impl Policy {
             .map(|(r, o)| KeyframePose::from_action(&std::array::from_fn(|i| r[i]), o, &config.observation.workspace))
             .collect();
         let pointers = match last_pointers {
-            Some((Some((log_weights, candidates)), relation)) => {
+            Some((Some((log_weights, candidates)), relation)) if read_out => {
                 pointer_readouts(&log_weights, &candidates, relation.as_ref(), &config.observation.workspace)?
             }
             _ => Vec::new(),
@@ -244,7 +247,7 @@ impl Policy {
         in_pool(|| {
             let prepared = self.prepare(observation)?;
             let encoded = self.encode(&prepared)?;
-            self.sample_in_pool(&prepared, &encoded, options, &mut SampleProfile::default())
+            self.sample_in_pool(&prepared, &encoded, options, &mut SampleProfile::default(), true)
         })
     }
 }

@@ -9,7 +9,7 @@ def rec(ep, k):
     return r
 rows = []
 for e in range(10):
-    ep = f'/work/main/runs/data/held_slide_block/episode_{e:05d}.safetensors'
+    ep = f'runs/data/held_slide_block/episode_{e:05d}.safetensors'
     k1 = rec(ep, 1)['recorded']['position']; k2 = rec(ep, 2)['recorded']['position']
     dx, dy = k2[0]-k1[0], k2[1]-k1[1]; n = math.hypot(dx, dy); dx, dy = dx/n, dy/n
     block = (k1[0]+0.055*dx, k1[1]+0.055*dy); zone = (k2[0]+0.03*dx, k2[1]+0.03*dy)

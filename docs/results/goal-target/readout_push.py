@@ -9,7 +9,7 @@ def rec(ep, k):
 h = lambda a, b: math.hypot(a[0]-b[0], a[1]-b[1]) * 1000
 rows = []
 for e in range(10):
-    ep = f'/work/main/runs/goal/held_push_seq/episode_{e:05d}.safetensors'
+    ep = f'runs/goal/held_push_seq/episode_{e:05d}.safetensors'
     r0 = rec(ep, 0); first = r0['recorded']['position']; second = rec(ep, 2)['recorded']['position']
     ex = r0['predictions'][r0['executed']]
     g = st.median(h(p['pointer']['goal'], first) for p in r0['predictions']), st.median(h(p['pointer']['goal'], second) for p in r0['predictions'])

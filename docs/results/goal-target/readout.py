@@ -2,7 +2,8 @@
 """Pointer readouts on held-out slide_block episodes: readout.py CHECKPOINT [KEYFRAME]
 g's distance to the named zone and to the block; p's to the block; beta; error."""
 import json, subprocess, sys, statistics as st, math
-B = '/tmp/tgt/release/flowram'
+import os
+B = os.environ.get('FLOWRAM', 'target/release/flowram')  # run from the repository root
 ck = sys.argv[1]; kf = int(sys.argv[2]) if len(sys.argv) > 2 else 0
 def rec(ep, k):
     r = json.loads(subprocess.run([B, 'predict', '--checkpoint', ck, '--episode', ep, '--keyframe', str(k), '--samples', '8', '--json'], capture_output=True, text=True, check=True).stdout)

@@ -2,7 +2,8 @@
 """Pointer readouts on two-button push_buttons episodes (runs/goal/held_push_seq, seeds 1020-1029):
 readout_push.py CHECKPOINT. At keyframe 0 (going to the first button): where g and p point."""
 import json, subprocess, sys, statistics as st, math
-B = '/tmp/tgt/release/flowram'
+import os
+B = os.environ.get('FLOWRAM', 'target/release/flowram')  # run from the repository root
 ck = sys.argv[1]
 def rec(ep, k):
     return json.loads(subprocess.run([B, 'predict', '--checkpoint', ck, '--episode', ep, '--keyframe', str(k), '--samples', '8', '--json'], capture_output=True, text=True, check=True).stdout)

@@ -151,6 +151,13 @@ pub struct ModelConfig {
     /// is sharper than in training. Off (the paper): the rotation from the action token alone.
     #[serde(default)]
     pub relation_rotation: bool,
+    /// `relation_rotation`'s MLP also reads the action token's output (its input is g - p and
+    /// the token, so it can tell the tasks apart). On five tasks the MLP of g - p alone did not
+    /// learn slide_block's y-push yaw (81-93 deg off on most held-out samples, arm GUR), where
+    /// on slide_block alone it did (arm SR): g - p spans the same directions on every task, and
+    /// only slide_block's yaw follows it. Off: g - p alone.
+    #[serde(default)]
+    pub relation_rotation_reads_token: bool,
 }
 
 /// How the instruction is pooled into one vector for the instruction AdaLN
@@ -466,6 +473,13 @@ impl PolicyConfig {
             return bad(
                 "model.relation_rotation",
                 "false unless model.relational_pointer = true (it reads the relation's g - p)",
+                "true".to_string(),
+            );
+        }
+        if self.model.relation_rotation_reads_token && !self.model.relation_rotation {
+            return bad(
+                "model.relation_rotation_reads_token",
+                "false unless model.relation_rotation = true (it widens that MLP's input)",
                 "true".to_string(),
             );
         }

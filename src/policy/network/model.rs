@@ -450,7 +450,8 @@ impl FlowRam {
                 None
             },
             relation_rotation: if config.model.relation_rotation {
-                Some(Mlp::new_zero_output(3, RELATION_ROTATION_HIDDEN, 6, vb.pp("relation_rotation"))?)
+                let input = if config.model.relation_rotation_reads_token { 3 + c } else { 3 };
+                Some(Mlp::new_zero_output(input, RELATION_ROTATION_HIDDEN, 6, vb.pp("relation_rotation"))?)
             } else {
                 None
             },
@@ -508,7 +509,8 @@ impl FlowRam {
             heads += 2.0 * c as f64 + 9.0;
         }
         if self.relation_rotation.is_some() {
-            heads += 2.0 * ((3 + 6) * RELATION_ROTATION_HIDDEN) as f64;
+            let input = if self.config.model.relation_rotation_reads_token { 3 + c } else { 3 };
+            heads += 2.0 * ((input + 6) * RELATION_ROTATION_HIDDEN) as f64;
         }
         let mut once_per_observation = 0.0;
         if self.pooling_query.is_some() {
@@ -659,7 +661,13 @@ impl FlowRam {
                     let beta = relation.forward(last)?; // [B, 1]
                     position = position.add(&pointed.sub(goal)?.broadcast_mul(&beta)?)?;
                     if let Some(r) = &self.relation_rotation {
-                        rotation = rotation.add(&r.forward(&goal.sub(&pointed)?)?)?;
+                        let relation = goal.sub(&pointed)?;
+                        let input = if self.config.model.relation_rotation_reads_token {
+                            Tensor::cat(&[&relation, last], 1)?
+                        } else {
+                            relation
+                        };
+                        rotation = rotation.add(&r.forward(&input)?)?;
                     }
                     relation_used = Some((beta, goal.clone()));
                 }

@@ -2,9 +2,11 @@
 # The shipped five-task checkpoint (models/policy/pretrained/five-tasks, see its model card):
 # expert demonstrations with recovery samples (collect --perturb-sigma 0.03, every approach
 # keyframe), 300 per task for the four colour tasks and 100 for open_drawer,
-# models/policy/five-tasks.toml (front + wrist cameras, 14,000 steps: 83 min of training on the
-# 2-core machine of session 22, whose cpu.toml step took 482 ms), evaluation on 50 held-out seeds
-# per task. See scripts/train-tasks.sh.
+# models/policy/five-tasks.toml (front + wrist cameras, 14,000 steps: 31 min of training on the
+# 2-core machine of sessions 26-27, whose cpu.toml step took 178-188 ms; 70-83 min on slower
+# draws), evaluation on 50 held-out seeds per task. Training is deterministic on these machines,
+# so this command makes the shipped weights bit for bit (arm GUR, session 27). See
+# scripts/train-tasks.sh.
 export PERTURB_SIGMA="${PERTURB_SIGMA:-0.03}"
 export DEMOS_push_buttons="${DEMOS_push_buttons:-300}" DEMOS_slide_block="${DEMOS_slide_block:-300}"
 export DEMOS_close_jar="${DEMOS_close_jar:-300}" DEMOS_stack_blocks="${DEMOS_stack_blocks:-300}"

@@ -550,6 +550,15 @@ fn the_rotation_reading_the_relation_needs_it_starts_switched_off_and_learns() {
     let samples =
         |config: &PolicyConfig| Policy::random(config, text()).unwrap().predict(&observation, &options).unwrap();
     assert_eq!(samples(&config), samples(&without));
+    // The branch that also reads the action token: only with the branch, and also switched off.
+    let mut token = config.clone();
+    token.model.relation_rotation_reads_token = true;
+    token.validate().unwrap();
+    assert_eq!(samples(&token), samples(&without));
+    let mut orphan = without.clone();
+    orphan.model.relation_rotation_reads_token = true;
+    let err = orphan.validate().unwrap_err().to_string();
+    assert!(err.contains("model.relation_rotation_reads_token") && err.contains("relation_rotation"), "{err}");
     let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
     let mut text = text();
     let mut trainer = Trainer::new(&config).unwrap();
@@ -611,6 +620,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("model", "point_colour"),
         ("model", "relational_pointer"),
         ("model", "relation_rotation"),
+        ("model", "relation_rotation_reads_token"),
         ("flow", "pointer_weight"),
         ("flow", "pointer_sigma"),
         ("flow", "consensus"),
@@ -627,6 +637,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.time_sampling, flowram::policy::flow::FlowTimeSampling::Uniform);
     assert!(!config.model.instruction_pointer && !config.model.position_pointer && !config.model.point_colour);
     assert!(!config.model.relational_pointer && !config.model.relation_rotation);
+    assert!(!config.model.relation_rotation_reads_token);
     assert_eq!((config.flow.pointer_weight, config.flow.pointer_sigma), (0.0, 0.02));
     assert_eq!(config.observation.proprio_history, 1);
     assert_eq!(config.flow.consensus, Consensus::Medoid);

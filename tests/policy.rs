@@ -445,20 +445,25 @@ fn the_relational_pointer_needs_both_pointers_starts_as_one_pointer_and_learns_i
         assert!((a - b).abs() < 1e-5, "relational {relational:?}, single pointer {single:?}");
     }
     // Training reaches beta (the flow loss's gradient through p - g).
+    assert!(norm_after_training(&config, "relation.weight", 20) > 0.0, "beta's weights are still zero after 20 steps");
+}
+
+/// The squared norm of the variable `name` after `steps` training steps of `config` on the
+/// demonstration (a zero-initialised branch that training reaches is no longer zero).
+fn norm_after_training(config: &PolicyConfig, name: &str, steps: usize) -> f32 {
     let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
     let mut text = text();
-    let mut trainer = Trainer::new(&config).unwrap();
-    for _ in 0..20 {
+    let mut trainer = Trainer::new(config).unwrap();
+    for _ in 0..steps {
         trainer.train_step(&mut data, &mut text).unwrap();
     }
     let vars = trainer.varmap.data().lock().unwrap();
-    let weight = vars.get("relation.weight").expect("the relational pointer's beta is a trained variable");
-    let norm: f32 = weight.as_tensor().sqr().unwrap().sum_all().unwrap().to_scalar().unwrap();
-    assert!(norm > 0.0, "beta's weights are still zero after 20 steps");
+    let weight = vars.get(name).unwrap_or_else(|| panic!("{name} is not a trained variable"));
+    weight.as_tensor().sqr().unwrap().sum_all().unwrap().to_scalar().unwrap()
 }
 
-#[test]
-fn the_relational_pointer_target_needs_the_relation_and_moves_the_pointer_loss_once_beta_is_learnt() {
+/// tiny_config with both pointers, the relation, and their losses.
+fn relational_config() -> PolicyConfig {
     let mut config = tiny_config();
     config.model.position_pointer = true;
     config.model.instruction_pointer = true;
@@ -467,6 +472,12 @@ fn the_relational_pointer_target_needs_the_relation_and_moves_the_pointer_loss_o
     config.flow.pointer_weight = 1.0;
     config.train.batch = 8;
     config.validate().unwrap();
+    config
+}
+
+#[test]
+fn the_relational_pointer_target_needs_the_relation_and_moves_the_pointer_loss_once_beta_is_learnt() {
+    let config = relational_config();
     let mut relational = config.clone();
     relational.flow.pointer_target = PointerTarget::Relational;
     relational.validate().unwrap();
@@ -500,14 +511,7 @@ fn the_relational_pointer_target_needs_the_relation_and_moves_the_pointer_loss_o
 #[test]
 fn the_goal_under_the_keyframe_needs_the_goal_loss_and_changes_it_from_the_first_step() {
     use flowram::policy::config::GoalTarget;
-    let mut config = tiny_config();
-    config.model.position_pointer = true;
-    config.model.instruction_pointer = true;
-    config.model.relational_pointer = true;
-    config.flow.goal_weight = 1.0;
-    config.flow.pointer_weight = 1.0;
-    config.train.batch = 8;
-    config.validate().unwrap();
+    let config = relational_config();
     let mut under = config.clone();
     under.flow.goal_target = GoalTarget::Under;
     under.validate().unwrap();
@@ -559,27 +563,13 @@ fn the_rotation_reading_the_relation_needs_it_starts_switched_off_and_learns() {
     orphan.model.relation_rotation_reads_token = true;
     let err = orphan.validate().unwrap_err().to_string();
     assert!(err.contains("model.relation_rotation_reads_token") && err.contains("relation_rotation"), "{err}");
-    let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
-    let mut text = text();
-    let mut trainer = Trainer::new(&config).unwrap();
-    for _ in 0..20 {
-        trainer.train_step(&mut data, &mut text).unwrap();
-    }
-    let vars = trainer.varmap.data().lock().unwrap();
-    let weight = vars.get("relation_rotation.1.weight").expect("the branch's output layer is a trained variable");
-    let norm: f32 = weight.as_tensor().sqr().unwrap().sum_all().unwrap().to_scalar().unwrap();
+    let norm = norm_after_training(&config, "relation_rotation.1.weight", 20);
     assert!(norm > 0.0, "the branch's output layer is still zero after 20 steps");
 }
 
 #[test]
 fn predict_explained_reads_out_each_samples_pointers_without_changing_the_samples() {
-    let mut config = tiny_config();
-    config.model.position_pointer = true;
-    config.model.instruction_pointer = true;
-    config.model.relational_pointer = true;
-    config.flow.goal_weight = 1.0;
-    config.flow.pointer_weight = 1.0;
-    config.validate().unwrap();
+    let config = relational_config();
     let observation = Observation::from_episode(demonstration(), 0).unwrap();
     let options = SamplingOptions::new(2, 3, 7);
     let mut policy = Policy::random(&config, text()).unwrap();

@@ -239,15 +239,24 @@ impl Policy {
 
     /// Observation in, keyframes out.
     pub fn predict(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<Vec<KeyframePose>> {
-        self.predict_explained(observation, options).map(|s| s.poses)
+        self.predict_reading_out(observation, options, false).map(|s| s.poses)
     }
 
     /// [`Self::predict`], with what each sample's pointers said at its last Euler step.
     pub fn predict_explained(&mut self, observation: &Observation, options: &SamplingOptions) -> Result<Samples> {
+        self.predict_reading_out(observation, options, true)
+    }
+
+    fn predict_reading_out(
+        &mut self,
+        observation: &Observation,
+        options: &SamplingOptions,
+        read_out: bool,
+    ) -> Result<Samples> {
         in_pool(|| {
             let prepared = self.prepare(observation)?;
             let encoded = self.encode(&prepared)?;
-            self.sample_in_pool(&prepared, &encoded, options, &mut SampleProfile::default(), true)
+            self.sample_in_pool(&prepared, &encoded, options, &mut SampleProfile::default(), read_out)
         })
     }
 }

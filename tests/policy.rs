@@ -533,18 +533,13 @@ fn the_goal_under_the_keyframe_needs_the_goal_loss_and_changes_it_from_the_first
 
 #[test]
 fn the_rotation_reading_the_relation_needs_it_starts_switched_off_and_learns() {
-    let mut config = tiny_config();
-    config.model.position_pointer = true;
-    config.model.instruction_pointer = true;
-    config.model.relational_pointer = false;
+    let mut config = relational_config();
     config.model.relation_rotation = true;
-    config.flow.goal_weight = 1.0;
-    config.flow.pointer_weight = 1.0;
-    config.train.batch = 8;
-    let err = config.validate().unwrap_err().to_string();
-    assert!(err.contains("model.relation_rotation") && err.contains("relational_pointer"), "{err}");
-    config.model.relational_pointer = true;
     config.validate().unwrap();
+    let mut no_relation = config.clone();
+    no_relation.model.relational_pointer = false;
+    let err = no_relation.validate().unwrap_err().to_string();
+    assert!(err.contains("model.relation_rotation") && err.contains("relational_pointer"), "{err}");
     let mut without = config.clone();
     without.model.relation_rotation = false;
     // The output layer starts at zero: the same samples as without the branch (initial values

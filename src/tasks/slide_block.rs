@@ -79,6 +79,12 @@ impl Task for SlideBlock {
         d.x.abs() < ZONE_HALF && d.y.abs() < ZONE_HALF && (block.translation.z - TABLE_Z - BLOCK_HALF).abs() < 0.01
     }
 
+    /// 2 since session 28: one yaw per push axis (the y pushes 90 deg); 1 took the yaw nearest
+    /// 0, -90 deg for the +y pushes and +90 for the -y ones.
+    fn expert_version(&self) -> u32 {
+        2
+    }
+
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let block = world.body_pose("block")?.translation.vector;
         let zone = world.body_pose(&state.targets[0])?.translation.vector;

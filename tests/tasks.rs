@@ -220,39 +220,6 @@ fn slide_block_expert_succeeds_and_idling_does_not() {
 }
 
 #[test]
-fn slide_block_pushes_along_one_axis_share_one_yaw() {
-    // The closed gripper is symmetric, so the expert takes one yaw per push axis: 0 for the x
-    // pushes, 90 deg for the y pushes (never -90: the two y pushes' yaws 180 deg apart put the x
-    // pushes' yaw between them, and the five-task policy sampled that one).
-    use nalgebra::{UnitQuaternion, Vector3};
-    use rand::SeedableRng;
-    let task = tasks::by_name("slide_block").unwrap();
-    let mut world = tasks::load_world(task.as_ref()).unwrap();
-    let mut seen = [0usize; 4]; // +x, -x, +y, -y
-    for seed in 0..24u64 {
-        let state = task.reset(&mut world, (seed % 4) as usize, &mut rand::rngs::StdRng::seed_from_u64(seed)).unwrap();
-        let keyframes = task.expert(&world, &state).unwrap();
-        assert_eq!(keyframes.len(), 4);
-        let push = Vector3::from(keyframes[2].position) - Vector3::from(keyframes[1].position);
-        let [w, i, j, k] = keyframes[0].quat_wxyz;
-        let tcp_x = UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, i, j, k)) * Vector3::x();
-        let yaw = tcp_x.y.atan2(tcp_x.x).to_degrees();
-        let (slot, expected) = if push.x.abs() > push.y.abs() {
-            (if push.x > 0.0 { 0 } else { 1 }, 0.0)
-        } else {
-            (if push.y > 0.0 { 2 } else { 3 }, 90.0)
-        };
-        seen[slot] += 1;
-        assert!((yaw - expected).abs() < 1e-3, "seed {seed}: push {push:?} has yaw {yaw} deg, expected {expected}");
-        assert!(
-            keyframes.iter().all(|k| k.quat_wxyz == keyframes[0].quat_wxyz),
-            "seed {seed}: the yaw changes mid-push"
-        );
-    }
-    assert!(seen.iter().all(|&n| n > 0), "every push direction drawn: {seen:?}");
-}
-
-#[test]
 fn open_drawer_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("open_drawer").unwrap();
     let expert = success_rate(task.as_ref(), || Actor::Expert, 10);

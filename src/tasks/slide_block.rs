@@ -4,10 +4,9 @@
 //! Scene: `models/tasks/slide_block.xml`, a 5 cm block and four 12 cm target zones. Reset: the
 //! block at x in [0.50, 0.56] m, y in [-0.06, 0.06] m (world), turned by up to 10 deg; the
 //! zones 0.13 m from it toward +x, -x, +y and -y with their colours shuffled. Expert
-//! (4 keyframes): above the block on the far side from the target (yaw 0 for the x pushes, 90
-//! deg for the y pushes), down to 2 cm above the table, push along the line until the block's
-//! centre is on the zone's, lift. Success: the block's centre inside the named zone, block on
-//! the table.
+//! (4 keyframes): above the block on the far side from the target, down to 2 cm above the
+//! table, push along the line until the block's centre is on the zone's, lift. Success: the
+//! block's centre inside the named zone, block on the table.
 use nalgebra::{Translation3, UnitQuaternion, Vector2, Vector3};
 use rand::Rng;
 use rand::rngs::StdRng;
@@ -79,22 +78,13 @@ impl Task for SlideBlock {
         d.x.abs() < ZONE_HALF && d.y.abs() < ZONE_HALF && (block.translation.z - TABLE_Z - BLOCK_HALF).abs() < 0.01
     }
 
-    /// 2 since session 28: one yaw per push axis (the y pushes 90 deg); 1 took the yaw nearest
-    /// 0, -90 deg for the +y pushes and +90 for the -y ones.
-    fn expert_version(&self) -> u32 {
-        2
-    }
-
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
         let block = world.body_pose("block")?.translation.vector;
         let zone = world.body_pose(&state.targets[0])?.translation.vector;
         let d = Vector3::new(zone.x - block.x, zone.y - block.y, 0.0).normalize();
         // The closed fingers' 6 cm face pushes: TCP x along the push (either sign, the closed
-        // gripper is symmetric). One yaw per push axis: the yaw is taken in (-45, 135] deg, so
-        // pushes toward +x and -x share yaw 0 and pushes toward +y and -y share yaw 90. (Taken
-        // nearest the home yaw, 0, the y pushes' yaws were -90 and +90, 180 deg apart with the x
-        // pushes' yaw between them: the five-task policy sampled that middle one. Session 28.)
-        let yaw = symmetric_yaw(d.y.atan2(d.x), std::f64::consts::PI, std::f64::consts::FRAC_PI_4);
+        // gripper is symmetric), as close to the home yaw as possible.
+        let yaw = symmetric_yaw(d.y.atan2(d.x), std::f64::consts::PI, 0.0);
         let down = top_down(yaw);
         let height = TABLE_Z + 0.02;
         let behind = block - d * (BLOCK_HALF + 0.03);

@@ -7,17 +7,17 @@
 //! at x in [0.5, 0.58], y in [-0.05, 0.05]. The blocks to stack are the `count` blocks of the
 //! target colour with the smallest y (the robot's right first), taken in that order: a rule the
 //! camera can see, so the next block is a function of the scene and not of a hidden index (four
-//! blocks look alike). Expert (6 keyframes per block): above the block (grasp yaw:
-//! [`grasp_yaw`]), down and close, lift, above the stack, down to the next level and open, lift.
-//! Success: at least `count` blocks of the target colour on the platform's footprint (within
-//! 2.5 cm of its centre), one per level, the stack standing.
+//! blocks look alike). Expert (6 keyframes per block): above the block, down and close, lift,
+//! above the stack, down to the next level and open, lift. Success: at
+//! least `count` blocks of the target colour on the platform's footprint (within 2.5 cm of its
+//! centre), one per level, the stack standing.
 use nalgebra::{Isometry3, Translation3, UnitQuaternion, Vector2, Vector3};
 use rand::Rng;
 use rand::rngs::StdRng;
 use rand::seq::SliceRandom;
 
 use super::colors::{self, COLORS};
-use super::grasp::{clearest_yaw, palm_clearance, pick_and_place, symmetric_yaw, top_down};
+use super::grasp::{clearest_yaw, pick_and_place, symmetric_yaw, top_down};
 use super::layout::{apart, scatter};
 use super::{TargetAlternatives, Task, TaskError, TaskState};
 use crate::control::keyframe::Keyframe;
@@ -50,30 +50,6 @@ fn stacking_order(spots: &[Vector2<f64>], count: usize) -> Vec<String> {
 fn yaw_of(pose: &Isometry3<f64>) -> f64 {
     let x = pose.rotation * Vector3::x();
     x.y.atan2(x.x)
-}
-
-/// How far (m, horizontally) the palm's line must pass from the platform's centre for the expert
-/// to take a block by its faces nearest yaw 0: the palm is lower than a two-block stack's top
-/// when the fingers reach a block on the table ([`super::grasp::PALM_HALF`]), and the stack's
-/// half-diagonal (2.8 cm), the hand's half-width (about 3 cm) and a centimetre make 7 cm.
-pub const STACK_CLEARANCE: f64 = 0.07;
-
-/// The expert's grasp yaw for `block`: its pair of faces nearest yaw 0 (the block's own turn,
-/// which a camera sees), unless that palm line passes within [`STACK_CLEARANCE`] of the platform
-/// (`platform`, its centre): then the pair whose palm passes farther from it. Before session 28
-/// (expert version 2) the expert took whichever pair's palm passed farther from the platform and
-/// the five other blocks, the other pair in 430 of 900 picks of the 300 demonstrations (95 of
-/// 900 with this rule): a choice that hangs on every block on the table, which the five-task
-/// policy did not learn (its pick yaws fell between the pairs).
-pub fn grasp_yaw(block: &Isometry3<f64>, platform: &Vector3<f64>) -> f64 {
-    let nearest_zero = symmetric_yaw(yaw_of(block), std::f64::consts::FRAC_PI_2, 0.0);
-    let other = symmetric_yaw(nearest_zero + std::f64::consts::FRAC_PI_2, std::f64::consts::PI, 0.0);
-    let at = block.translation.vector;
-    if palm_clearance(&at, nearest_zero, std::slice::from_ref(platform)) >= STACK_CLEARANCE {
-        nearest_zero
-    } else {
-        clearest_yaw(&at, [nearest_zero, other], std::slice::from_ref(platform))
-    }
 }
 
 impl Task for StackBlocks {
@@ -144,11 +120,10 @@ impl Task for StackBlocks {
         }
     }
 
-    /// 3 since session 28: the grasp yaw of [`grasp_yaw`] (the faces nearest yaw 0 unless the
-    /// palm would pass over the stack). 2 since session 24: the named colour's blocks right to left
-    /// ([`stacking_order`]); 1 took `block_0, block_1, ...`, an order the cameras cannot see.
+    /// 2 since session 24: the named colour's blocks right to left ([`stacking_order`]); 1 took
+    /// `block_0, block_1, ...`, an order the cameras cannot see.
     fn expert_version(&self) -> u32 {
-        3
+        2
     }
 
     fn expert(&self, world: &World, state: &TaskState) -> Result<Vec<Keyframe>, TaskError> {
@@ -156,7 +131,20 @@ impl Task for StackBlocks {
         let mut keyframes = Vec::new();
         for (level, name) in state.targets.iter().enumerate() {
             let block = world.body_pose(name)?;
-            let yaw = grasp_yaw(&block, &platform);
+            // Either pair of faces can be grasped: the one whose palm line passes farther from
+            // the stack and the other blocks (the palm is lower than a two-block stack's top
+            // when the fingers reach a block on the table).
+            let obstacles: Vec<Vector3<f64>> = std::iter::once(Ok(platform))
+                .chain(
+                    (0..BLOCKS)
+                        .map(|i| format!("block_{i}"))
+                        .filter(|n| n != name)
+                        .map(|n| world.body_pose(&n).map(|p| p.translation.vector)),
+                )
+                .collect::<Result<_, _>>()?;
+            let first = symmetric_yaw(yaw_of(&block), std::f64::consts::FRAC_PI_2, 0.0);
+            let second = symmetric_yaw(first + std::f64::consts::FRAC_PI_2, std::f64::consts::PI, 0.0);
+            let yaw = clearest_yaw(&block.translation.vector, [first, second], &obstacles);
             let pick = block.translation.vector + Vector3::new(0.0, 0.0, 0.005);
             let place = Vector3::new(
                 platform.x,

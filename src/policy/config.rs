@@ -1,6 +1,7 @@
 //! The policy's configuration: observation, network, flow and training hyper-parameters, read
 //! from TOML (`models/policy/*.toml`) and stored as JSON in every checkpoint. Every value is
 //! validated and a wrong one is named.
+use std::collections::BTreeMap;
 use std::path::Path;
 
 use serde::{Deserialize, Serialize};
@@ -372,6 +373,11 @@ pub struct TrainConfig {
     /// paper): one sample per observation.
     #[serde(default = "one")]
     pub flow_samples: usize,
+    /// How often each task is drawn relative to the others: task name -> weight (finite, > 0);
+    /// a task not named weighs 1. Empty (the default): every task equally, as the release
+    /// samples, with the same draws as before the option existed.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub task_weights: BTreeMap<String, f64>,
 }
 
 fn one() -> usize {
@@ -428,6 +434,15 @@ impl PolicyConfig {
         ] {
             if v == 0 {
                 return bad(field, "positive", v.to_string());
+            }
+        }
+        for (task, &w) in &self.train.task_weights {
+            if !(w.is_finite() && w > 0.0) {
+                return bad(
+                    &format!("train.task_weights.{task}"),
+                    "a finite weight above 0 (1: as the others)",
+                    w.to_string(),
+                );
             }
         }
         let sharpening = self.flow.pointer_sharpening;

@@ -99,7 +99,7 @@ impl Trainer {
         let mut opens = Vec::with_capacity(b * k);
         let (lo, hi) = (ws.min(), ws.max());
         for _ in 0..b {
-            let s = data.draw(&mut draw_rng);
+            let s = data.draw(&mut draw_rng, &t_cfg.task_weights);
             let prepared = data.prepared(s, config, text)?;
             let j = t_cfg.translation_jitter as f32;
             let shift: [f32; 3] = std::array::from_fn(|a| 2.0 * aug_rng.random_range(-j..=j) / (hi[a] - lo[a]));
@@ -240,6 +240,7 @@ pub fn train(
     if let Some(steps) = steps_override {
         trainer.config.train.steps = steps;
     }
+    data.check_task_weights(&trainer.config.train.task_weights)?;
     let metrics_path = run.join("metrics.csv");
     let mut log =
         if resume { MetricsLog::resume(&metrics_path, trainer.step)? } else { MetricsLog::create(&metrics_path)? };

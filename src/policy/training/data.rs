@@ -210,6 +210,18 @@ mod tests {
     }
 
     #[test]
+    fn task_weights_must_be_finite_and_positive() {
+        let mut config = PolicyConfig::cpu_default().unwrap();
+        for w in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            config.train.task_weights = BTreeMap::from([("slide_block".to_string(), w)]);
+            let message = config.validate().unwrap_err().to_string();
+            assert!(message.contains("train.task_weights.slide_block") && message.contains("above 0"), "{message}");
+        }
+        config.train.task_weights = BTreeMap::from([("slide_block".to_string(), 3.0)]);
+        config.validate().unwrap();
+    }
+
+    #[test]
     fn task_weights_must_name_tasks_of_the_data() {
         let data = data();
         assert!(data.check_task_weights(&BTreeMap::from([("b".to_string(), 2.0)])).is_ok());

@@ -182,7 +182,7 @@ mod tests {
     }
 
     #[test]
-    fn task_weights_draw_tasks_in_proportion_and_equal_weights_draw_like_none() {
+    fn task_weights_draw_tasks_in_proportion_and_no_weights_draw_as_before() {
         let data = data();
         let draws = 30_000;
         let uniform = task_counts(&data, &BTreeMap::new(), draws);

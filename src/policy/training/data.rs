@@ -1,5 +1,6 @@
-//! Training data: demonstrations grouped by task and variation, drawn uniformly over tasks, then
-//! variations, then episodes, then keyframes (as the release samples), with each keyframe's
+//! Training data: demonstrations grouped by task and variation, drawn uniformly (or by
+//! `train.task_weights`) over tasks, then uniformly over variations, then episodes, then
+//! keyframes (as the release samples), with each keyframe's
 //! observation prepared (lifted, sampled) once and kept.
 use std::collections::BTreeMap;
 use std::path::PathBuf;

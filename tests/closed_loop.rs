@@ -81,7 +81,14 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
     let approaches: Vec<usize> =
         (0..plan.len()).filter(|&k| k + 1 < plan.len() && plan[k][2] - plan[k + 1][2] >= 0.04).collect();
     assert_eq!(approaches, vec![0, 2], "above each cap, then the press");
-    let always = |target| Perturbation { probability: 1.0, sigma_m: 0.03, target, grasp_probability: 0.0, detours: 1 };
+    let always = |target| Perturbation {
+        probability: 1.0,
+        sigma_m: 0.03,
+        target,
+        grasp_probability: 0.0,
+        detours: 1,
+        yaw_sigma_deg: 0.0,
+    };
     let run = |world: &mut _, target| {
         run_episode(task.as_ref(), world, 20, 5, Actor::PerturbedExpert(always(target)), None).unwrap()
     };
@@ -132,12 +139,20 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
         target: RecoveryTarget::Next,
         grasp_probability: 0.0,
         detours: 1,
+        yaw_sigma_deg: 0.0,
     };
     let plain = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(never), None).unwrap();
     assert_eq!(plain.actions, clean.actions);
     // out of range: a clear error, before anything runs
     for (probability, sigma_m, grasp_probability) in [(1.5, 0.03, 0.0), (0.5, f64::NAN, 0.0), (0.5, 0.03, -0.1)] {
-        let bad = Perturbation { probability, sigma_m, target: RecoveryTarget::Next, grasp_probability, detours: 1 };
+        let bad = Perturbation {
+            probability,
+            sigma_m,
+            target: RecoveryTarget::Next,
+            grasp_probability,
+            detours: 1,
+            yaw_sigma_deg: 0.0,
+        };
         let err =
             run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(bad), None).unwrap_err().to_string();
         assert!(err.contains("expected"), "{err}");
@@ -157,6 +172,7 @@ fn several_detours_per_approach_share_the_first_and_all_go_on_to_the_next_keyfra
         target: RecoveryTarget::Next,
         grasp_probability: 0.0,
         detours,
+        yaw_sigma_deg: 0.0,
     };
     let one = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(with(1)), None).unwrap();
     let three = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(with(3)), None).unwrap();
@@ -196,6 +212,56 @@ fn several_detours_per_approach_share_the_first_and_all_go_on_to_the_next_keyfra
 }
 
 #[test]
+fn turned_detours_keep_their_positions_and_go_on_to_the_experts_yaw() {
+    // stack_blocks variation 0, seed 7 (the missed-grasp test below): approaches above blocks
+    let task = tasks::by_name("stack_blocks").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let with = |yaw_sigma_deg| Perturbation {
+        probability: 1.0,
+        sigma_m: 0.03,
+        target: RecoveryTarget::Next,
+        grasp_probability: 0.0,
+        detours: 1,
+        yaw_sigma_deg,
+    };
+    let straight = run_episode(task.as_ref(), &mut world, 0, 7, Actor::PerturbedExpert(with(0.0)), None).unwrap();
+    let turned = run_episode(task.as_ref(), &mut world, 0, 7, Actor::PerturbedExpert(with(15.0)), None).unwrap();
+    assert!(turned.success, "problems: {:?}", turned.problems);
+    // the same samples and actions: the turn changes what the detours see, not what is taught
+    assert_eq!(turned.actions, straight.actions);
+    let flat: Vec<f32> = turned.actions.iter().flatten().copied().collect();
+    let detours: Vec<usize> = (0..turned.actions.len()).filter(|&j| is_detour(&flat, j)).collect();
+    assert!(detours.len() >= 2, "a detour before each approach: {detours:?}");
+    let yaw = |p: [f32; 8]| {
+        let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(p[3], p[4], p[5], p[6]));
+        (q * nalgebra::Vector3::x()).y.atan2((q * nalgebra::Vector3::x()).x).to_degrees()
+    };
+    let mut turns = Vec::new();
+    for &j in &detours {
+        let (a, b) = (straight.observations[j].proprio, turned.observations[j].proprio);
+        let apart = (0..3).map(|d| (a[d] - b[d]).powi(2)).sum::<f32>().sqrt();
+        assert!(apart < 0.003, "detour {j}: the turned detour is {apart} m from the straight one");
+        let turn = (yaw(b) - yaw(a) + 540.0).rem_euclid(360.0) - 180.0;
+        assert!(turn.abs() <= 2.5 * 15.0 + 2.0, "detour {j} turned {turn} deg, past 2.5 sigma");
+        turns.push(turn);
+        // the hand still points down
+        let down = |p: [f32; 8]| {
+            let q = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(p[3], p[4], p[5], p[6]));
+            (q * nalgebra::Vector3::z()).z
+        };
+        assert!((down(a) - down(b)).abs() < 0.01, "detour {j}: a turn about the vertical only");
+    }
+    assert!(turns.iter().any(|t| t.abs() > 1.0), "some detour is turned: {turns:?}");
+    // out of range: a clear error
+    for bad in [-1.0, 30.0, f64::NAN] {
+        let err = run_episode(task.as_ref(), &mut world, 0, 7, Actor::PerturbedExpert(with(bad)), None)
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("turn") && err.contains("expected"), "{err}");
+    }
+}
+
+#[test]
 fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() {
     let task = tasks::by_name("stack_blocks").unwrap();
     let mut world = tasks::load_world(task.as_ref()).unwrap();
@@ -213,6 +279,7 @@ fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() 
         target: RecoveryTarget::Next,
         grasp_probability: 1.0,
         detours: 1,
+        yaw_sigma_deg: 0.0,
     };
     let run = |world: &mut _| run_episode(task.as_ref(), world, 0, 7, Actor::PerturbedExpert(misses), None).unwrap();
     let missed = run(&mut world);

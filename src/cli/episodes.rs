@@ -227,6 +227,10 @@ pub struct CollectArgs {
     /// --perturb-sigma; README, "Recovery samples").
     #[arg(long, default_value_t = 1, requires = "perturb_sigma")]
     perturb_detours: u32,
+    /// Each detour also turns the hand about the vertical by N(0, this) degrees, clipped to 2.5
+    /// sigma (0 to 17.5; with --perturb-sigma; README, "Recovery samples"). 0: no turn.
+    #[arg(long, default_value_t = 0.0, requires = "perturb_sigma")]
+    perturb_yaw_deg: f64,
     #[command(flatten)]
     shard: super::ShardArgs,
     #[arg(long)]
@@ -250,6 +254,7 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
             target: RecoveryTarget::named(&args.perturb_target).unwrap_or_default(),
             grasp_probability: args.perturb_grasp_probability,
             detours: args.perturb_detours,
+            yaw_sigma_deg: args.perturb_yaw_deg,
         }),
     };
     let owned = options.shard.items(args.episodes).count();

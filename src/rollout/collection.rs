@@ -137,12 +137,13 @@ impl CollectionManifest {
     fn request(&self) -> String {
         let perturbation = match self.perturbation {
             Some(p) => format!(
-                " --perturb-sigma {} --perturb-probability {} --perturb-target {} --perturb-grasp-probability {} --perturb-detours {}",
+                " --perturb-sigma {} --perturb-probability {} --perturb-target {} --perturb-grasp-probability {} --perturb-detours {} --perturb-yaw-deg {}",
                 p.sigma_m,
                 p.probability,
                 p.target.name(),
                 p.grasp_probability,
-                p.detours
+                p.detours,
+                p.yaw_sigma_deg
             ),
             None => String::new(),
         };

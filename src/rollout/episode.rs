@@ -100,6 +100,20 @@ pub struct Perturbation {
     /// loop is where slide_block's episodes fail (`docs/experiments.md`, session 25).
     #[serde(default = "Perturbation::one_detour")]
     pub detours: u32,
+    /// Standard deviation of a turn about the vertical given to every detour, degrees (0, the
+    /// default and what manifests written before it existed mean: none; at most
+    /// [`Perturbation::MAX_YAW_SIGMA_DEG`]). The angle is clipped to 2.5 sigma and drawn from its
+    /// own seeded stream, so a collection with turns has the same detour positions as one
+    /// without. The detour's observation then shows the hand turned off the approach's yaw with
+    /// the next keyframe's (the expert's) yaw as its action: the step down learns to correct the
+    /// yaw from the close view, which an expert that never turns on the way down cannot teach
+    /// (`docs/experiments.md`, session 29: stack_blocks' picks go down 10-30 deg off the faces).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub yaw_sigma_deg: f64,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
 }
 
 /// The action recorded for an observation taken on a detour.
@@ -150,6 +164,11 @@ impl Perturbation {
     const EXTRA_DETOUR_SEED_SALT: u64 = 0xde70_0a25;
     /// The most detours per approach keyframe.
     pub const MAX_DETOURS: u32 = 8;
+    /// The largest turn's standard deviation (deg): 2.5 sigma stays under 45 deg, where a
+    /// cube's nearest faces change.
+    pub const MAX_YAW_SIGMA_DEG: f64 = 17.5;
+    /// Mixed into the episode seed for the detours' turns' RNG.
+    const YAW_SEED_SALT: u64 = 0x7a11_7e5d;
 
     fn one_detour() -> u32 {
         1
@@ -170,6 +189,13 @@ impl Perturbation {
             return Err(format!(
                 "the perturbation sigma is {} m; expected more than 0 and at most 0.1 m (a few centimetres)",
                 self.sigma_m
+            ));
+        }
+        if !(0.0..=Self::MAX_YAW_SIGMA_DEG).contains(&self.yaw_sigma_deg) {
+            return Err(format!(
+                "the detours' turn sigma is {} deg; expected 0 (no turn) to {} deg",
+                self.yaw_sigma_deg,
+                Self::MAX_YAW_SIGMA_DEG
             ));
         }
         if !(1..=Self::MAX_DETOURS).contains(&self.detours) {
@@ -226,6 +252,21 @@ impl Perturbation {
         let go = rng.random::<f64>() < self.probability;
         let detour = self.offset(&plan[k], rng);
         go.then_some(detour)
+    }
+
+    /// `detour` turned about the world's vertical by N(0, yaw sigma) clipped to 2.5 sigma (no
+    /// draw and no turn when the sigma is 0).
+    fn turn(&self, detour: Keyframe, rng: &mut StdRng) -> Keyframe {
+        if self.yaw_sigma_deg == 0.0 {
+            return detour;
+        }
+        let angle =
+            crate::policy::flow::standard_normal(rng).clamp(-Self::CLIP, Self::CLIP) * self.yaw_sigma_deg.to_radians();
+        let [w, x, y, z] = detour.quat_wxyz;
+        let q = nalgebra::UnitQuaternion::from_euler_angles(0.0, 0.0, angle)
+            * nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(w, x, y, z));
+        let q = q.quaternion();
+        Keyframe { quat_wxyz: [q.w, q.i, q.j, q.k], ..detour }
     }
 
     /// `approach` moved by a random offset (x, y ~ N(0, sigma), z ~ |N(0, sigma)| upward, each
@@ -351,6 +392,7 @@ pub fn run_episode(
     };
     let mut grasp_rng = StdRng::seed_from_u64(seed ^ Perturbation::GRASP_SEED_SALT);
     let mut extra_detour_rng = StdRng::seed_from_u64(seed ^ Perturbation::EXTRA_DETOUR_SEED_SALT);
+    let mut yaw_rng = StdRng::seed_from_u64(seed ^ Perturbation::YAW_SEED_SALT);
     // A missed grasp that touched something: the episode is no demonstration (unsuccessful, so
     // a collection tries another seed).
     let mut spoiled = false;
@@ -400,6 +442,7 @@ pub fn run_episode(
         // were, its missed grasp would stand for the detour.
         let detour = perturbation.as_mut().and_then(|(p, rng)| Some((*p, p.detour(&planned, k, rng)?)));
         if let Some((p, detour)) = detour.filter(|_| !grasp_missed) {
+            let detour = p.turn(detour, &mut yaw_rng);
             // The intended keyframe is this observation's action, the detour is what runs.
             result.observations.push(observation);
             result.actions.push(proprio_of(&keyframe));
@@ -412,7 +455,7 @@ pub fn run_episode(
             }
             // Further detours around the same approach, each observed with the same action.
             for _ in 1..p.detours {
-                let further = p.offset(&keyframe, &mut extra_detour_rng);
+                let further = p.turn(p.offset(&keyframe, &mut extra_detour_rng), &mut yaw_rng);
                 result.observations.push(observation);
                 result.actions.push(proprio_of(&action));
                 execute(task, world, &mut runner, &base, k, &further, &mut state, &mut result)?;

@@ -532,6 +532,40 @@ fn the_goal_under_the_keyframe_needs_the_goal_loss_and_changes_it_from_the_first
 }
 
 #[test]
+fn the_goal_at_the_stages_end_needs_the_goal_loss_and_moves_its_target_to_the_press() {
+    use flowram::policy::config::{GoalKeyframe, GoalTarget};
+    let config = relational_config();
+    let mut stage = config.clone();
+    stage.flow.goal_keyframe = GoalKeyframe::StageEnd;
+    stage.validate().unwrap();
+    let mut no_goal = stage.clone();
+    no_goal.flow.goal_weight = 0.0;
+    let err = no_goal.validate().unwrap_err().to_string();
+    assert!(err.contains("flow.goal_keyframe") && err.contains("goal_weight"), "{err}");
+    // Not serialised when "last": configs written before the option are unchanged.
+    let json = serde_json::to_value(&config).unwrap();
+    assert!(json["flow"].get("goal_keyframe").is_none(), "{}", json["flow"]);
+    assert_eq!(serde_json::to_value(&stage).unwrap()["flow"]["goal_keyframe"], "stage_end");
+    // The demonstration presses one button: above it, the press, up 8 cm. Its stage ends at the
+    // press, 8 cm under the last keyframe: a different 3-D target from the first step on, and
+    // the same horizontal one ("under").
+    let first = |config: &PolicyConfig| -> StepLoss {
+        let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
+        let mut text = text();
+        Trainer::new(config).unwrap().train_step(&mut data, &mut text).unwrap()
+    };
+    let (last, press) = (first(&config), first(&stage));
+    assert!(press.total.is_finite(), "{press:?}");
+    assert_eq!(last.cfm, press.cfm);
+    assert_ne!(last.total, press.total);
+    let mut under = config.clone();
+    under.flow.goal_target = GoalTarget::Under;
+    let mut under_stage = under.clone();
+    under_stage.flow.goal_keyframe = GoalKeyframe::StageEnd;
+    assert_eq!(first(&under).total, first(&under_stage).total);
+}
+
+#[test]
 fn the_rotation_reading_the_relation_needs_it_starts_switched_off_and_learns() {
     let mut config = relational_config();
     config.model.relation_rotation = true;
@@ -612,6 +646,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
         ("flow", "pointer_sharpening"),
         ("flow", "pointer_target"),
         ("flow", "goal_target"),
+        ("flow", "goal_keyframe"),
         ("observation", "proprio_history"),
     ] {
         json[section].as_object_mut().unwrap().remove(key);
@@ -629,6 +664,7 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.pointer_sharpening, PointerSharpening::OFF);
     assert_eq!(config.flow.pointer_target, PointerTarget::Keyframe);
     assert_eq!(config.flow.goal_target, flowram::policy::config::GoalTarget::Keyframe);
+    assert_eq!(config.flow.goal_keyframe, flowram::policy::config::GoalKeyframe::Last);
     // a command line's --pointer-temperature replaces the temperature only, and only when given
     let set = PointerSharpening { temperature: 0.5, until: 0.3 };
     assert_eq!(set.with_temperature(None), set);

@@ -250,6 +250,36 @@ pub struct FlowConfig {
     /// cannot say "opposite the named zone".
     #[serde(default)]
     pub goal_target: GoalTarget,
+    /// Which keyframe `goal_weight`'s target is: `"last"` (the episode's last keyframe, the
+    /// default) or `"stage_end"` (the end of the sample's stage, [`stage_end`]: the first
+    /// keyframe from the sample's on that the arm reaches coming down and leaves going up: a
+    /// press, a grasp, a placing, the end of a push; the last keyframe where none follows). On
+    /// push_buttons' sequences the last keyframe is the last button, so the instruction
+    /// pointer learnt to point there while the arm goes to the first, and the relation's shift
+    /// beta (p - g) moved the first press 3-7 cm (`docs/experiments.md`, session 27); the stage's
+    /// end is the button pressed now. On slide_block and open_drawer it is the last keyframe's
+    /// place, as before; on close_jar and stack_blocks the object picked while picking.
+    ///
+    /// [`stage_end`]: crate::policy::scene::observation::stage_end
+    #[serde(default, skip_serializing_if = "GoalKeyframe::is_last")]
+    pub goal_keyframe: GoalKeyframe,
+}
+
+/// `flow.goal_keyframe`: which keyframe the instruction pointer's loss points at.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GoalKeyframe {
+    /// The episode's last keyframe.
+    #[default]
+    Last,
+    /// The end of the sample's stage ([`crate::policy::scene::observation::stage_end`]).
+    StageEnd,
+}
+
+impl GoalKeyframe {
+    fn is_last(&self) -> bool {
+        *self == Self::Last
+    }
 }
 
 /// `flow.goal_target`: how the instruction pointer's loss measures nearness to the goal.
@@ -513,6 +543,13 @@ impl PolicyConfig {
                 "flow.pointer_target",
                 "\"keyframe\" unless model.relational_pointer = true and flow.pointer_weight > 0 (the relational target is the pointer loss's, through the relation)",
                 "\"relational\"".to_string(),
+            );
+        }
+        if self.flow.goal_keyframe == GoalKeyframe::StageEnd && self.flow.goal_weight <= 0.0 {
+            return bad(
+                "flow.goal_keyframe",
+                "\"last\" unless flow.goal_weight > 0 (it chooses the instruction pointer loss's target)",
+                "\"stage_end\"".to_string(),
             );
         }
         if self.flow.goal_target == GoalTarget::Under && self.flow.goal_weight <= 0.0 {

@@ -184,6 +184,29 @@ pub fn is_detour(actions: &[f32], k: usize) -> bool {
     (next + 1) * 8 <= actions.len() && actions[k * 8..next * 8] == actions[next * 8..(next + 1) * 8]
 }
 
+/// How much higher the keyframe after a stage's end is, at least (m): the arm leaves going up.
+pub const STAGE_RISE_M: f32 = 0.02;
+
+/// The end of sample `k`'s stage (`flow.goal_keyframe = "stage_end"`): the first sample `j >= k`
+/// whose action the arm reaches coming down and leaves going up: the next action is at least
+/// [`STAGE_RISE_M`] higher, and the nearest earlier action at a different height (more than
+/// [`STAGE_RISE_M`] apart, so detours' repeated actions and a push's level path count as one
+/// plateau) is higher. A press, a grasp, a placing, the end of a push. The episode's last sample
+/// where none follows (so the goal is the last keyframe, as `"last"` has it, once the last stage
+/// has begun). `actions` is an episode's `action` tensor, [K, 8] row-major.
+pub fn stage_end(actions: &[f32], k: usize) -> usize {
+    let samples = actions.len() / 8;
+    let z = |j: usize| actions[j * 8 + 2];
+    let last = samples.saturating_sub(1);
+    (k..last)
+        .find(|&j| {
+            let rises = z(j + 1) >= z(j) + STAGE_RISE_M;
+            let came_down = (0..j).rev().map(z).find(|&h| (h - z(j)).abs() > STAGE_RISE_M).is_some_and(|h| h > z(j));
+            rises && came_down
+        })
+        .unwrap_or(last)
+}
+
 /// Keyframes executed before sample `k` of an episode whose `action` tensor is `actions`: the
 /// samples before it that are not detours ([`is_detour`]).
 pub fn keyframe_index(actions: &[f32], k: usize) -> usize {
@@ -245,4 +268,54 @@ pub fn lift_scene(
     crate::policy::scene::token_order::sort_by_morton(&cloud.points_norm, &mut cloud.semantic);
     cloud.geometric_global = global_geometric_tokens(&cloud.points_norm, n2)?;
     Ok(cloud)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An action tensor of keyframes at these heights (x = the sample's index, so that equal
+    /// heights are different keyframes unless `repeat` says a detour repeats the next one).
+    fn heights(z: &[f32]) -> Vec<f32> {
+        z.iter().enumerate().flat_map(|(i, &h)| [i as f32, 0.0, h, 1.0, 0.0, 0.0, 0.0, 1.0]).collect()
+    }
+
+    fn ends(actions: &[f32]) -> Vec<usize> {
+        (0..actions.len() / 8).map(|k| stage_end(actions, k)).collect()
+    }
+
+    #[test]
+    fn a_stage_ends_where_the_arm_arrives_coming_down_and_leaves_going_up() {
+        // The experts' keyframe heights (held-out episodes of each task).
+        // push_buttons, two buttons: above, press, above, press, up: each press ends its stage
+        assert_eq!(ends(&heights(&[0.84, 0.78, 0.84, 0.78, 0.86])), [1, 1, 3, 3, 4]);
+        // slide_block: above, down beside the block, the push (level), up: the push's end
+        assert_eq!(ends(&heights(&[0.87, 0.77, 0.77, 0.87])), [2, 2, 2, 3]);
+        // open_drawer: above, down on the handle, the pull (level): never up, the last keyframe
+        assert_eq!(ends(&heights(&[0.99, 0.91, 0.91])), [2, 2, 2]);
+        // close_jar: above the lid, grasp, lift, above the jar (higher still), place, up: the
+        // lift and the carry are one way up, not the end of a stage
+        assert_eq!(ends(&heights(&[0.88, 0.76, 0.88, 0.97, 0.85, 0.97])), [1, 1, 4, 4, 4, 5]);
+        // stack_blocks: pick (above, grasp, lift), place (above, down, up), pick again; the
+        // place's approach is 1 cm above the lift, under STAGE_RISE_M
+        assert_eq!(
+            ends(&heights(&[0.89, 0.77, 0.89, 0.90, 0.78, 0.90, 0.89, 0.77, 0.89])),
+            [1, 1, 4, 4, 4, 7, 7, 7, 8]
+        );
+    }
+
+    #[test]
+    fn detours_repeat_their_action_and_do_not_end_a_stage() {
+        // push_buttons with a detour before each approach: the detour's sample has the press
+        // as its action, like the sample after it
+        let mut a = heights(&[0.84, 0.78, 0.78, 0.84, 0.78, 0.78, 0.86]);
+        // samples 1 and 2 are the same press (the detour's action repeats it); so are 4 and 5
+        a.copy_within(8..16, 16);
+        a.copy_within(32..40, 40);
+        assert!(is_detour(&a, 1) && is_detour(&a, 4));
+        assert_eq!(ends(&a), [2, 2, 2, 5, 5, 5, 6]);
+        // one sample, or none: the last (or 0)
+        assert_eq!(ends(&heights(&[0.8])), [0]);
+        assert_eq!(stage_end(&[], 0), 0);
+    }
 }

@@ -20,7 +20,7 @@ use super::lr_schedule::LearningRateSchedule;
 use super::rng::step_rng_for;
 use crate::policy::checkpoint::format::{TrainerState, read_checkpoint_config};
 use crate::policy::checkpoint::store::CheckpointStore;
-use crate::policy::config::{GoalTarget, PointerTarget, PolicyConfig};
+use crate::policy::config::{GoalKeyframe, GoalTarget, PointerTarget, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{
     LossWeights, flow_matching_loss, flow_training_sample, pointer_loss, relational_pointer_target,
@@ -30,7 +30,7 @@ use crate::policy::network::init::seeded_var_builder;
 use crate::policy::network::model::{FlowRam, device};
 use crate::policy::network::text_encoder::TextEncoder;
 use crate::policy::runtime::in_pool;
-use crate::policy::scene::observation::{ACTION_DIMS, Observation};
+use crate::policy::scene::observation::{ACTION_DIMS, Observation, stage_end};
 use crate::policy::training::metrics::{MetricsLog, MetricsRow, read_metrics};
 
 /// The losses of one step (unweighted components and the weighted total).
@@ -94,7 +94,7 @@ impl Trainer {
         let k = t_cfg.flow_samples;
         let mut samples = Vec::with_capacity(b);
         let mut targets = Vec::with_capacity(b * k);
-        // The episode's last keyframe position, shifted with its observation (`flow.goal_weight`).
+        // The goal keyframe's position (`flow.goal_keyframe`), shifted with its observation (`flow.goal_weight`).
         let mut goals = Vec::with_capacity(b * 3);
         let mut opens = Vec::with_capacity(b * k);
         let (lo, hi) = (ws.min(), ws.max());
@@ -112,7 +112,11 @@ impl Trainer {
                 a1[a] += shift[a];
             }
             if config.flow.goal_weight > 0.0 {
-                let last = Observation::episode_action(episode, episode.keyframes() - 1).to_action(ws)?;
+                let goal = match config.flow.goal_keyframe {
+                    GoalKeyframe::Last => episode.keyframes() - 1,
+                    GoalKeyframe::StageEnd => stage_end(&episode.action, s.k),
+                };
+                let last = Observation::episode_action(episode, goal).to_action(ws)?;
                 goals.extend((0..3).map(|a| last[a] + shift[a]));
             }
             for _ in 0..k {

@@ -275,7 +275,7 @@ mod tests {
     use super::*;
 
     /// An action tensor of keyframes at these heights (x = the sample's index, so that equal
-    /// heights are different keyframes unless `repeat` says a detour repeats the next one).
+    /// heights are different keyframes; a test copies a row onto the next to make a detour).
     fn heights(z: &[f32]) -> Vec<f32> {
         z.iter().enumerate().flat_map(|(i, &h)| [i as f32, 0.0, h, 1.0, 0.0, 0.0, 0.0, 1.0]).collect()
     }

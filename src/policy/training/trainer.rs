@@ -112,12 +112,12 @@ impl Trainer {
                 a1[a] += shift[a];
             }
             if config.flow.goal_weight > 0.0 {
-                let goal = match config.flow.goal_keyframe {
+                let goal_k = match config.flow.goal_keyframe {
                     GoalKeyframe::Last => episode.keyframes() - 1,
                     GoalKeyframe::StageEnd => stage_end(&episode.action, s.k),
                 };
-                let last = Observation::episode_action(episode, goal).to_action(ws)?;
-                goals.extend((0..3).map(|a| last[a] + shift[a]));
+                let goal = Observation::episode_action(episode, goal_k).to_action(ws)?;
+                goals.extend((0..3).map(|a| goal[a] + shift[a]));
             }
             for _ in 0..k {
                 targets.push(a1);

@@ -171,6 +171,25 @@ fn stack_blocks_takes_the_target_colour_blocks_right_to_left() {
 }
 
 #[test]
+fn world_objects_are_the_loose_blocks_where_they_lie_with_their_colours() {
+    use rand::SeedableRng;
+    let task = tasks::by_name("stack_blocks").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    task.reset(&mut world, 7, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    let objects = world.objects();
+    let names: Vec<&str> = objects.iter().map(|o| o.name.as_str()).collect();
+    // the platform and the robot are fixed: only the six blocks have free joints
+    assert_eq!(names, ["block_0", "block_1", "block_2", "block_3", "block_4", "block_5"]);
+    for o in &objects {
+        let p = world.body_pose(&o.name).unwrap().translation.vector;
+        assert!((p - nalgebra::Vector3::from(o.position)).norm() < 1e-12, "{}: {:?} vs {p}", o.name, o.position);
+    }
+    // block_0..block_3 carry the target colour, block_4 and block_5 others
+    assert!(objects[..4].iter().all(|o| o.rgba == objects[0].rgba), "{objects:?}");
+    assert!(objects[4..].iter().all(|o| o.rgba != objects[0].rgba), "{objects:?}");
+}
+
+#[test]
 fn slide_block_expert_succeeds_and_idling_does_not() {
     let task = tasks::by_name("slide_block").unwrap();
     let expert = success_rate(task.as_ref(), || Actor::Expert, 10);

@@ -78,6 +78,10 @@ struct RunReport {
     /// With --realtime: the runtime's timing figures.
     #[serde(skip_serializing_if = "Option::is_none")]
     realtime: Option<RealtimeFigures>,
+    /// Lock-step runs: where the scene's loose objects ended (world frame, m), with their colours
+    /// (`--policy idle` gives the initial layout: nothing moves).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    objects: Vec<flowram::sim::SceneObject>,
 }
 
 pub fn run(args: RunArgs) -> anyhow::Result<()> {
@@ -148,6 +152,7 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         sim_seconds: result.sim_seconds,
         problems: result.problems.iter().map(|(k, p)| format!("keyframe {k}: {p}")).collect(),
         actions: result.actions.clone(),
+        objects: if figures.is_none() { world.objects() } else { Vec::new() },
         realtime: figures,
     };
     if args.json {

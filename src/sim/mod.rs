@@ -19,4 +19,4 @@ pub use camera::{CameraRig, Intrinsics, RgbdFrame, Visuals};
 pub use cloud::{PointCloud, Workspace};
 pub use error::SimError;
 pub use recorder::Video;
-pub use world::{ArmState, World};
+pub use world::{ArmState, SceneObject, World};

@@ -16,6 +16,15 @@ use crate::deps::Deps;
 use crate::robot::JointVector;
 
 /// What a torque-controlled arm reports every tick.
+/// A loose object of the scene: see [`World::objects`].
+#[derive(Debug, Clone, PartialEq, serde::Serialize)]
+pub struct SceneObject {
+    pub name: String,
+    /// World frame, m.
+    pub position: [f64; 3],
+    pub rgba: [f32; 4],
+}
+
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ArmState {
     /// Simulation time (s).
@@ -258,6 +267,22 @@ impl World {
     pub fn body_pose(&self, name: &str) -> Result<Isometry3<f64>, SimError> {
         let id = self.body_id(name)?;
         Ok(pose_from(&self.data.xpos()[id], &self.data.xmat()[id]))
+    }
+
+    /// The scene's loose objects (bodies with a free joint), in model order: name, world position
+    /// (m) and the colour of the body's first geom (RGBA in [0, 1]), e.g. to read where an
+    /// episode left the blocks.
+    pub fn objects(&self) -> Vec<SceneObject> {
+        let model = self.model();
+        let (jntadr, geomadr, types) = (model.body_jntadr(), model.body_geomadr(), model.jnt_type());
+        (0..model.ffi().nbody as usize)
+            .filter(|&b| jntadr[b] >= 0 && types[jntadr[b] as usize] == MjtJoint::mjJNT_FREE)
+            .map(|b| SceneObject {
+                name: model.id_to_name(MjtObjBase::mjOBJ_BODY, b).unwrap_or_default().to_owned(),
+                position: self.data.xpos()[b],
+                rgba: (geomadr[b] >= 0).then(|| model.geom_rgba()[geomadr[b] as usize]).unwrap_or([0.0; 4]),
+            })
+            .collect()
     }
 
     /// Places a free-floating body (one with a free joint) at `pose` in the world frame, at rest,

@@ -664,9 +664,9 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.goal_target, flowram::policy::config::GoalTarget::Keyframe);
     assert_eq!(config.flow.goal_keyframe, flowram::policy::config::GoalKeyframe::Last);
     // a command line's --pointer-temperature replaces the temperature only, and only when given
-    let set = PointerSharpening { temperature: 0.5, until: 0.3 };
+    let set = PointerSharpening { temperature: 0.5, until: 0.3, posterior: false };
     assert_eq!(set.with_temperature(None), set);
-    assert_eq!(set.with_temperature(Some(0.1)), PointerSharpening { temperature: 0.1, until: 0.3 });
+    assert_eq!(set.with_temperature(Some(0.1)), PointerSharpening { temperature: 0.1, until: 0.3, posterior: false });
     config.validate().unwrap();
     // The consensus rule is one of two names; another is refused with the field and the choices.
     let mut json = serde_json::to_value(tiny_config()).unwrap();
@@ -953,6 +953,34 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
 }
 
 #[test]
+fn the_pointers_posterior_is_as_trained_at_flow_time_0_and_moves_the_later_steps() {
+    let config = tiny_config();
+    assert!(config.model.position_pointer);
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let observation = Observation::from_episode(demonstration(), 1).unwrap();
+    let mut explain = |steps: usize, posterior: bool| {
+        let sharpening = PointerSharpening { posterior, ..PointerSharpening::OFF };
+        let options = SamplingOptions { sharpening, ..SamplingOptions::new(steps, 2, 3) };
+        policy.predict_explained(&observation, &options).unwrap()
+    };
+    // One Euler step runs at t = 0 only, where a_0 is pure noise and every candidate is as
+    // likely as any other (the likelihood's centres t (x_i + c) are all 0): as trained, exactly.
+    assert_eq!(explain(1, true), explain(1, false));
+    // Later steps weigh the candidates by where the sample is.
+    let (trained, posterior) = (explain(4, false), explain(4, true));
+    assert_ne!(posterior.poses, trained.poses);
+    assert_ne!(posterior.pointers, trained.pointers);
+    // The option is written to a config only when on, so configs without it read as before.
+    let json = serde_json::to_string(&config.flow.pointer_sharpening).unwrap();
+    assert!(!json.contains("posterior"), "{json}");
+    let on = PointerSharpening { posterior: true, ..PointerSharpening::OFF };
+    let json = serde_json::to_string(&on).unwrap();
+    assert_eq!(serde_json::from_str::<PointerSharpening>(&json).unwrap(), on);
+    assert_eq!(PointerSharpening::OFF.with_posterior(true), on);
+    assert_eq!(on.with_posterior(false), on, "a command line turns it on, never off");
+}
+
+#[test]
 fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     // A fresh model with the position pointer: its attention is spread over the scene, so
     // dividing the scores by a small temperature moves the pointed position.
@@ -966,20 +994,20 @@ fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     };
     let trained = predict(PointerSharpening::OFF);
     // No step before flow time 0; a temperature of 1 divides nothing.
-    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.0 }), trained);
-    assert_eq!(predict(PointerSharpening { temperature: 1.0, until: 1.0 }), trained);
-    let half = predict(PointerSharpening { temperature: 0.05, until: 0.5 });
+    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.0, posterior: false }), trained);
+    assert_eq!(predict(PointerSharpening { temperature: 1.0, until: 1.0, posterior: false }), trained);
+    let half = predict(PointerSharpening { temperature: 0.05, until: 0.5, posterior: false });
     assert_ne!(half, trained);
     // 4 steps at t = 0, 0.25, 0.5, 0.75: until 0.3 sharpens the same two steps as 0.5, 0.51 and
     // 1.0 sharpen more (t < until, strictly).
-    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.3 }), half);
-    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 0.51 }), half);
-    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 1.0 }), half);
+    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.3, posterior: false }), half);
+    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 0.51, posterior: false }), half);
+    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 1.0, posterior: false }), half);
     // The config refuses a temperature that is not positive and a flow time outside [0, 1].
     let mut bad = config.clone();
     bad.flow.pointer_sharpening.temperature = 0.0;
     let message = bad.validate().unwrap_err().to_string();
     assert!(message.contains("flow.pointer_sharpening.temperature"), "{message}");
-    bad.flow.pointer_sharpening = PointerSharpening { temperature: 0.1, until: 1.5 };
+    bad.flow.pointer_sharpening = PointerSharpening { temperature: 0.1, until: 1.5, posterior: false };
     assert!(bad.validate().unwrap_err().to_string().contains("flow.pointer_sharpening.until"));
 }

@@ -285,6 +285,10 @@ pub struct HeldOutArgs {
     /// flow.pointer_sharpening.temperature; 1: as trained).
     #[arg(long, value_parser = super::positive_number)]
     pointer_temperature: Option<f64>,
+    /// The position pointer as the posterior given the noisy position at every Euler step
+    /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
+    #[arg(long)]
+    pointer_posterior: bool,
     #[arg(long)]
     json: bool,
 }
@@ -298,7 +302,12 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     let held_out = load_training_data(&args.data)?;
     let samples = args.samples.unwrap_or(policy.config().flow.consensus_samples);
     let consensus = args.consensus.unwrap_or(policy.config().flow.consensus);
-    let sharpening = policy.config().flow.pointer_sharpening.with_temperature(args.pointer_temperature);
+    let sharpening = policy
+        .config()
+        .flow
+        .pointer_sharpening
+        .with_temperature(args.pointer_temperature)
+        .with_posterior(args.pointer_posterior);
     let options = SamplingOptions { steps, samples, drs: true, seed: 0, consensus, sharpening };
     let report = heldout_errors(&mut policy, &train_set, &held_out, &options, &mut TaskBar::new("keyframes"))?;
     if args.json {
@@ -426,12 +435,13 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
         // Arms of one checkpoint differ only here (MODE and SHARP in docs/experiments.md).
         let sampling = |r: &SuccessRecord| {
             format!(
-                "weights {}, {} steps, {} samples ({}), pointer temperature {}, DRS {}",
+                "weights {}, {} steps, {} samples ({}), pointer temperature {}{}, DRS {}",
                 r.checkpoint_digest,
                 r.steps,
                 r.samples,
                 r.consensus.name(),
                 r.pointer_temperature,
+                if r.pointer_posterior { ", pointer posterior" } else { "" },
                 r.drs
             )
         };

@@ -32,6 +32,10 @@ pub struct LearnedArgs {
     /// the checkpoint's flow.pointer_sharpening.temperature).
     #[arg(long, value_parser = super::positive_number)]
     pub pointer_temperature: Option<f64>,
+    /// The position pointer as the posterior given the noisy position at every Euler step
+    /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
+    #[arg(long)]
+    pub pointer_posterior: bool,
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]
     pub no_drs: bool,
@@ -75,7 +79,12 @@ impl LearnedArgs {
             drs: !self.no_drs,
             seed: 0,
             consensus: self.consensus.unwrap_or(policy.config().flow.consensus),
-            sharpening: policy.config().flow.pointer_sharpening.with_temperature(self.pointer_temperature),
+            sharpening: policy
+                .config()
+                .flow
+                .pointer_sharpening
+                .with_temperature(self.pointer_temperature)
+                .with_posterior(self.pointer_posterior),
         };
         Ok(FlowRamActor::new(policy, options))
     }

@@ -115,6 +115,10 @@ pub struct PredictArgs {
     /// the checkpoint's flow.pointer_sharpening.temperature).
     #[arg(long, value_parser = super::positive_number)]
     pointer_temperature: Option<f64>,
+    /// The position pointer as the posterior given the noisy position at every Euler step
+    /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
+    #[arg(long)]
+    pointer_posterior: bool,
     /// The w/o-DRS ablation: geometric tokens sampled globally at every step.
     #[arg(long)]
     no_drs: bool,
@@ -145,6 +149,7 @@ struct PredictReport {
     drs: bool,
     consensus: &'static str,
     pointer_temperature: f64,
+    pointer_posterior: bool,
     /// The index in `predictions` of the sample a closed-loop run executes (their consensus).
     executed: usize,
     recorded: KeyframePose,
@@ -165,7 +170,12 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         drs: !args.no_drs,
         seed: args.seed,
         consensus: args.consensus.unwrap_or(policy.config().flow.consensus),
-        sharpening: policy.config().flow.pointer_sharpening.with_temperature(args.pointer_temperature),
+        sharpening: policy
+            .config()
+            .flow
+            .pointer_sharpening
+            .with_temperature(args.pointer_temperature)
+            .with_posterior(args.pointer_posterior),
     };
     let Samples { poses: keyframes, pointers } = policy.predict_explained(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();
@@ -193,6 +203,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         drs: options.samples_with_drs(policy.config().radius_schedule),
         consensus: options.consensus.name(),
         pointer_temperature: options.sharpening.temperature,
+        pointer_posterior: options.sharpening.posterior,
         executed,
         recorded,
         predictions,

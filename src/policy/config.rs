@@ -317,6 +317,15 @@ pub struct PointerSharpening {
     /// Flow time: the steps at t < until are sharpened (0.5 of 8 steps: the first 4).
     #[serde(default = "half")]
     pub until: f64,
+    /// At every Euler step (whatever `until`), add to each candidate's score the log-likelihood of the noisy
+    /// position a_t had the keyframe been that candidate's position plus the position head's
+    /// offset c: -|a_t - t c|^2 / (2 (1 - t)^2), the straight path's a_t = t a1 + (1 - t) a0 with
+    /// a0 ~ N(0, I) (normalised workspace units). The scores act as the prior over candidates,
+    /// so the pointer becomes the posterior given where the sample already is: near t = 0 as
+    /// trained, later committed to the candidates near the sample (one block of several alike,
+    /// not their mean). Inference only; false: as trained.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub posterior: bool,
 }
 
 fn half() -> f64 {
@@ -331,12 +340,17 @@ impl Default for PointerSharpening {
 
 impl PointerSharpening {
     /// As trained at every step.
-    pub const OFF: Self = Self { temperature: 1.0, until: 0.5 };
+    pub const OFF: Self = Self { temperature: 1.0, until: 0.5, posterior: false };
 
     /// This sharpening with its temperature replaced where one is given (a command line's
     /// `--pointer-temperature` over the checkpoint's setting).
     pub fn with_temperature(self, temperature: Option<f64>) -> Self {
         Self { temperature: temperature.unwrap_or(self.temperature), ..self }
+    }
+
+    /// This sharpening, made the posterior where a command line asks (`--pointer-posterior`).
+    pub fn with_posterior(self, posterior: bool) -> Self {
+        Self { posterior: self.posterior || posterior, ..self }
     }
 
     /// The pointer's temperature at flow time `t`.

@@ -205,7 +205,8 @@ impl Policy {
             let t0 = Instant::now();
             let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
             let t1 = Instant::now();
-            let out = self.model.step_sharpened(&encoded, &suffix, options.sharpening.temperature_at(t))?;
+            let posterior = options.sharpening.posterior.then_some(t);
+            let out = self.model.step_sharpened(&encoded, &suffix, options.sharpening.temperature_at(t), posterior)?;
             profile.selection_ms += (t1 - t0).as_secs_f64() * 1e3;
             profile.network_ms += t1.elapsed().as_secs_f64() * 1e3;
             open = Some(out.open_logit);

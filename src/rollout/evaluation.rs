@@ -155,6 +155,10 @@ pub struct SuccessRecord {
     /// (`flow.pointer_sharpening`; 1, as trained, when absent).
     #[serde(default = "as_trained")]
     pub pointer_temperature: f64,
+    /// The pointer as the posterior given the noisy position (`flow.pointer_sharpening.posterior`;
+    /// false, as trained, when absent).
+    #[serde(default)]
+    pub pointer_posterior: bool,
     pub drs: bool,
     pub cameras: Vec<String>,
     pub shard: Shard,
@@ -193,6 +197,7 @@ impl SuccessRecord {
             samples: actor.options.samples,
             consensus: actor.options.consensus,
             pointer_temperature: actor.options.sharpening.temperature,
+            pointer_posterior: actor.options.sharpening.posterior,
             drs: actor.options.samples_with_drs(actor.policy.config().radius_schedule),
             cameras: options.cameras.clone(),
             shard: options.shard,
@@ -205,7 +210,7 @@ impl SuccessRecord {
         let fields = |r: &Self| {
             format!(
                 "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, consensus {}, \
-                 pointer temperature {}, drs {}, cameras {:?}",
+                 pointer temperature {}, pointer posterior {}, drs {}, cameras {:?}",
                 r.checkpoint_digest,
                 r.tasks,
                 r.episodes,
@@ -215,6 +220,7 @@ impl SuccessRecord {
                 r.samples,
                 r.consensus.name(),
                 r.pointer_temperature,
+                r.pointer_posterior,
                 r.drs,
                 r.cameras
             )
@@ -439,6 +445,8 @@ pub struct HeldOutReport {
     pub consensus: Consensus,
     /// `flow.pointer_sharpening.temperature` (1: as trained).
     pub pointer_temperature: f64,
+    /// `flow.pointer_sharpening.posterior` (false: as trained).
+    pub pointer_posterior: bool,
     pub model: Errors,
     pub training_mean: Errors,
     pub task_mean: Errors,
@@ -723,6 +731,7 @@ pub fn heldout_errors(
         samples: options.samples,
         consensus: options.consensus,
         pointer_temperature: options.sharpening.temperature,
+        pointer_posterior: options.sharpening.posterior,
         model: all.model,
         training_mean: all.training_mean,
         task_mean: all.task_mean,

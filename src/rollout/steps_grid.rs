@@ -67,14 +67,14 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
             )));
         }
         let setting = |r: &SuccessRecord| {
-            let sampling = (r.samples, r.consensus, r.pointer_temperature.to_bits());
+            let sampling = (r.samples, r.consensus, r.pointer_temperature.to_bits(), r.pointer_posterior);
             (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), sampling)
         };
         if setting(record) != setting(first) {
             return Err(grid_error(format!(
                 "{} and {} are not on the same episodes and sampling: tasks {:?}, seeds {}+{}, max keyframes {}, \
-                 cameras {:?}, samples {} ({}, pointer temperature {}) against tasks {:?}, seeds {}+{}, max \
-                 keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {})",
+                 cameras {:?}, samples {} ({}, pointer temperature {}, posterior {}) against tasks {:?}, seeds {}+{}, \
+                 max keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {}, posterior {})",
                 path.display(),
                 first_path.display(),
                 record.tasks,
@@ -85,6 +85,7 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 record.samples,
                 record.consensus.name(),
                 record.pointer_temperature,
+                record.pointer_posterior,
                 first.tasks,
                 first.seed,
                 first.episodes,
@@ -92,7 +93,8 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 first.cameras,
                 first.samples,
                 first.consensus.name(),
-                first.pointer_temperature
+                first.pointer_temperature,
+                first.pointer_posterior
             )));
         }
         if let Some(twin) = cells.iter().find(|c| {
@@ -352,6 +354,7 @@ mod tests {
             samples: 8,
             consensus: Consensus::Medoid,
             pointer_temperature: 1.0,
+            pointer_posterior: false,
             drs,
             cameras: vec!["front".into()],
             shard: Shard::WHOLE,

@@ -289,6 +289,15 @@ impl PoolingQuery {
     }
 }
 
+/// What the position pointer's posterior needs (`flow.pointer_sharpening.posterior`): the noisy
+/// position a_t [B, 3], the position head's offset [B, 3] and the flow time.
+#[derive(Debug, Clone, Copy)]
+pub struct Posterior<'a> {
+    pub position: &'a Tensor,
+    pub offset: &'a Tensor,
+    pub t: f32,
+}
+
 /// The position pointer (`model.position_pointer`): the predicted position as an attention over
 /// the scene tokens' positions.
 #[derive(Debug, Clone)]
@@ -327,6 +336,7 @@ impl PositionPointer {
         geometric_xyz: &Tensor,
         last: &Tensor,
         temperature: f64,
+        posterior: Option<Posterior>,
     ) -> Result<(Tensor, Tensor, Tensor)> {
         let keys = Tensor::cat(&[&memory.keys, &self.key.forward(geometric)?], 1)?;
         let xyz = Tensor::cat(&[&memory.xyz, geometric_xyz], 1)?;
@@ -334,6 +344,14 @@ impl PositionPointer {
         let mut scores = attention_scores(&q, &keys)?;
         if temperature != 1.0 {
             scores = scores.affine(1.0 / temperature, 0.0)?;
+        }
+        if let Some(Posterior { position, offset, t }) = posterior {
+            // log N(a_t; t (x_i + c), (1 - t)^2 I) up to a constant, per candidate i
+            let remaining = f64::from(1.0 - t).max(1e-3);
+            let centres = xyz.broadcast_add(&offset.unsqueeze(1)?)?.affine(f64::from(t), 0.0)?;
+            let squared = centres.broadcast_sub(&position.unsqueeze(1)?)?.sqr()?.sum(2)?;
+            let log_likelihood = squared.affine(-0.5 / (remaining * remaining), 0.0)?.unsqueeze(1)?;
+            scores = scores.add(&log_likelihood)?;
         }
         let log_weights = candle_nn::ops::log_softmax(&scores, 2)?;
         let pointed = log_weights.exp()?.matmul(&xyz)?.squeeze(1)?;
@@ -641,6 +659,7 @@ impl FlowRam {
         pointer: Option<(&PointerMemory, &Tensor, &Tensor)>,
         goal: Option<&Tensor>,
         pointer_temperature: f64,
+        posterior: Option<(&Tensor, f32)>,
     ) -> Result<Velocity> {
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
@@ -648,7 +667,9 @@ impl FlowRam {
         let mut rotation = self.rotation_head.forward(last)?;
         match (&self.position_pointer, pointer) {
             (Some(p), Some((memory, geometric, xyz))) => {
-                let (pointed, log_weights, candidates) = p.point(memory, geometric, xyz, last, pointer_temperature)?;
+                let posterior = posterior.map(|(a_t, t)| Posterior { position: a_t, offset: &position, t });
+                let (pointed, log_weights, candidates) =
+                    p.point(memory, geometric, xyz, last, pointer_temperature, posterior)?;
                 position = position.add(&pointed)?;
                 if let Some(relation) = &self.relation {
                     let goal = goal.ok_or_else(|| {
@@ -717,7 +738,7 @@ impl FlowRam {
         let x = Tensor::cat(&[&p_tokens, &s_tokens], 1)?;
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
         let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer, goal.as_ref(), 1.0)?;
+        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer, goal.as_ref(), 1.0, None)?;
         velocity.goal = goal_attention;
         Ok(velocity)
     }
@@ -735,23 +756,26 @@ impl FlowRam {
 
     /// Inference: one flow step from the cached prefix.
     pub fn step(&self, encoded: &EncodedObservation, suffix: &SuffixInputs) -> Result<Velocity> {
-        self.step_sharpened(encoded, suffix, 1.0)
+        self.step_sharpened(encoded, suffix, 1.0, None)
     }
 
-    /// [`Self::step`] with the position pointer's scores divided by `pointer_temperature`
+    /// [`Self::step`] with the position pointer's scores divided by `pointer_temperature` and,
+    /// with `posterior_at` the flow time, the pointer made the posterior given the noisy position
     /// (`flow.pointer_sharpening`; no effect without `model.position_pointer`).
     pub fn step_sharpened(
         &self,
         encoded: &EncodedObservation,
         suffix: &SuffixInputs,
         pointer_temperature: f64,
+        posterior_at: Option<f32>,
     ) -> Result<Velocity> {
         let (tokens, condition) =
             self.suffix_tokens(&encoded.features, &encoded.condition, encoded.goal.as_ref(), suffix)?;
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        self.heads(&last, pointer, encoded.goal.as_ref(), pointer_temperature)
+        let position = suffix.action.narrow(1, 0, 3)?;
+        self.heads(&last, pointer, encoded.goal.as_ref(), pointer_temperature, posterior_at.map(|t| (&position, t)))
     }
 }
 

@@ -280,7 +280,7 @@ impl World {
             .map(|b| SceneObject {
                 name: model.id_to_name(MjtObjBase::mjOBJ_BODY, b).unwrap_or_default().to_owned(),
                 position: self.data.xpos()[b],
-                rgba: (geomadr[b] >= 0).then(|| model.geom_rgba()[geomadr[b] as usize]).unwrap_or([0.0; 4]),
+                rgba: if geomadr[b] >= 0 { model.geom_rgba()[geomadr[b] as usize] } else { [0.0; 4] },
             })
             .collect()
     }

@@ -317,10 +317,11 @@ pub struct PointerSharpening {
     /// Flow time: the steps at t < until are sharpened (0.5 of 8 steps: the first 4).
     #[serde(default = "half")]
     pub until: f64,
-    /// At every Euler step (whatever `until`), add to each candidate's score the log-likelihood of the noisy
-    /// position a_t had the keyframe been that candidate's position plus the position head's
-    /// offset c: -|a_t - t c|^2 / (2 (1 - t)^2), the straight path's a_t = t a1 + (1 - t) a0 with
-    /// a0 ~ N(0, I) (normalised workspace units). The scores act as the prior over candidates,
+    /// At every Euler step (whatever `until`), add to each candidate i's score the log-likelihood
+    /// of the noisy position a_t had the keyframe been that candidate's position x_i plus the
+    /// position head's offset c: -|a_t - t (x_i + c)|^2 / (2 (1 - t)^2), from the straight path's
+    /// a_t = t a1 + (1 - t) a0 with a0 ~ N(0, I) (normalised workspace units; the relational
+    /// pointer's shift beta (p - g) is left out of c). The scores act as the prior over candidates,
     /// so the pointer becomes the posterior given where the sample already is: near t = 0 as
     /// trained, later committed to the candidates near the sample (one block of several alike,
     /// not their mean). Inference only; false: as trained.

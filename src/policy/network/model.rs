@@ -292,10 +292,10 @@ impl PoolingQuery {
 /// What the position pointer's posterior needs (`flow.pointer_sharpening.posterior`): the noisy
 /// position a_t [B, 3], the position head's offset [B, 3] and the flow time.
 #[derive(Debug, Clone, Copy)]
-pub struct Posterior<'a> {
-    pub position: &'a Tensor,
-    pub offset: &'a Tensor,
-    pub t: f32,
+struct Posterior<'a> {
+    position: &'a Tensor,
+    offset: &'a Tensor,
+    t: f32,
 }
 
 /// The position pointer (`model.position_pointer`): the predicted position as an attention over
@@ -774,8 +774,9 @@ impl FlowRam {
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        let position = suffix.action.narrow(1, 0, 3)?;
-        self.heads(&last, pointer, encoded.goal.as_ref(), pointer_temperature, posterior_at.map(|t| (&position, t)))
+        // the noisy position a_t, only where the posterior reads it
+        let position = posterior_at.map(|_| suffix.action.narrow(1, 0, 3)).transpose()?;
+        self.heads(&last, pointer, encoded.goal.as_ref(), pointer_temperature, position.as_ref().zip(posterior_at))
     }
 }
 

@@ -15,7 +15,6 @@ use super::scene::{self, ARM_JOINTS, ARM_MOTORS, BASE_BODY, FINGER_JOINTS, GRIPP
 use crate::deps::Deps;
 use crate::robot::JointVector;
 
-/// What a torque-controlled arm reports every tick.
 /// A loose object of the scene: see [`World::objects`].
 #[derive(Debug, Clone, PartialEq, serde::Serialize)]
 pub struct SceneObject {
@@ -25,6 +24,7 @@ pub struct SceneObject {
     pub rgba: [f32; 4],
 }
 
+/// What a torque-controlled arm reports every tick.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ArmState {
     /// Simulation time (s).
@@ -274,9 +274,9 @@ impl World {
     /// episode left the blocks.
     pub fn objects(&self) -> Vec<SceneObject> {
         let model = self.model();
-        let (jntadr, geomadr, types) = (model.body_jntadr(), model.body_geomadr(), model.jnt_type());
+        let geomadr = model.body_geomadr();
         (0..model.ffi().nbody as usize)
-            .filter(|&b| jntadr[b] >= 0 && types[jntadr[b] as usize] == MjtJoint::mjJNT_FREE)
+            .filter(|&b| free_joint(model, b).is_some())
             .map(|b| SceneObject {
                 name: model.id_to_name(MjtObjBase::mjOBJ_BODY, b).unwrap_or_default().to_owned(),
                 position: self.data.xpos()[b],
@@ -292,12 +292,9 @@ impl World {
         check_finite("pose", pose.rotation.coords.as_slice())?;
         let id = self.body_id(name)?;
         let model = self.data.model();
-        let jnt = model.body_jntadr()[id];
-        if jnt < 0 || model.jnt_type()[jnt as usize] != MjtJoint::mjJNT_FREE {
-            return Err(SimError::NotFreeBody { name: name.into() });
-        }
-        let qadr = model.jnt_qposadr()[jnt as usize] as usize;
-        let vadr = model.jnt_dofadr()[jnt as usize] as usize;
+        let jnt = free_joint(model, id).ok_or_else(|| SimError::NotFreeBody { name: name.into() })?;
+        let qadr = model.jnt_qposadr()[jnt] as usize;
+        let vadr = model.jnt_dofadr()[jnt] as usize;
         let t = pose.translation.vector;
         let r = pose.rotation.quaternion();
         self.data.qpos_mut()[qadr..qadr + 7].copy_from_slice(&[t.x, t.y, t.z, r.w, r.i, r.j, r.k]);
@@ -499,6 +496,12 @@ fn posture_names(model: &MjModel) -> Vec<String> {
             .filter_map(|n| n.strip_prefix("q_").map(str::to_owned)),
     );
     out
+}
+
+/// The free joint of `body` (its first joint, if that is free): a loose object's.
+fn free_joint(model: &MjModel, body: usize) -> Option<usize> {
+    let jnt = usize::try_from(model.body_jntadr()[body]).ok()?;
+    (model.jnt_type()[jnt] == MjtJoint::mjJNT_FREE).then_some(jnt)
 }
 
 pub(crate) fn names(model: &MjModel, kind: MjtObjBase, count: usize) -> Vec<String> {

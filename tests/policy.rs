@@ -664,9 +664,12 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.goal_target, flowram::policy::config::GoalTarget::Keyframe);
     assert_eq!(config.flow.goal_keyframe, flowram::policy::config::GoalKeyframe::Last);
     // a command line's --pointer-temperature replaces the temperature only, and only when given
-    let set = PointerSharpening { temperature: 0.5, until: 0.3, posterior: false };
+    let set = PointerSharpening { temperature: 0.5, until: 0.3, posterior: false, posterior_width: 0.0 };
     assert_eq!(set.with_temperature(None), set);
-    assert_eq!(set.with_temperature(Some(0.1)), PointerSharpening { temperature: 0.1, until: 0.3, posterior: false });
+    assert_eq!(
+        set.with_temperature(Some(0.1)),
+        PointerSharpening { temperature: 0.1, until: 0.3, posterior: false, posterior_width: 0.0 }
+    );
     config.validate().unwrap();
     // The consensus rule is one of two names; another is refused with the field and the choices.
     let mut json = serde_json::to_value(tiny_config()).unwrap();
@@ -981,6 +984,52 @@ fn the_pointers_posterior_is_as_trained_at_flow_time_0_and_moves_the_later_steps
 }
 
 #[test]
+fn the_posteriors_candidate_width_spans_points_to_as_trained_and_is_validated() {
+    let config = tiny_config();
+    let mut policy = Policy::random(&config, text()).unwrap();
+    let observation = Observation::from_episode(demonstration(), 1).unwrap();
+    let mut explain = |sharpening: PointerSharpening| {
+        let options = SamplingOptions { sharpening, ..SamplingOptions::new(4, 2, 3) };
+        policy.predict_explained(&observation, &options).unwrap()
+    };
+    let trained = explain(PointerSharpening::OFF);
+    let points = PointerSharpening { posterior: true, ..PointerSharpening::OFF };
+    let posterior = explain(points);
+    // A width spreads each candidate, so the likelihood weighs them less than as points ...
+    let wide = explain(PointerSharpening { posterior_width: 0.05, ..points });
+    assert_ne!(wide.poses, posterior.poses);
+    assert_ne!(wide.poses, trained.poses);
+    // ... and a width far beyond the scene makes every candidate as likely: as trained.
+    let boundless = explain(PointerSharpening { posterior_width: 1e9, ..points });
+    assert_eq!(boundless.poses, trained.poses);
+    // The command line's width turns the posterior on; none keeps the checkpoint's.
+    assert_eq!(
+        PointerSharpening::OFF.with_posterior_width(Some(0.02)),
+        PointerSharpening { posterior_width: 0.02, ..points }
+    );
+    assert_eq!(points.with_posterior_width(None), points);
+    // Written only when set, read back as written.
+    let set = PointerSharpening { posterior_width: 0.02, ..points };
+    let json = serde_json::to_string(&set).unwrap();
+    assert_eq!(serde_json::from_str::<PointerSharpening>(&json).unwrap(), set);
+    assert!(!serde_json::to_string(&points).unwrap().contains("width"));
+    // Refused: a negative or non-finite width, and a width without the posterior.
+    let mut bad = config.clone();
+    for sharpening in [
+        PointerSharpening { posterior_width: -0.01, ..points },
+        PointerSharpening { posterior_width: f64::NAN, ..points },
+        PointerSharpening { posterior_width: 0.02, ..PointerSharpening::OFF },
+    ] {
+        bad.flow.pointer_sharpening = sharpening;
+        let message = bad.validate().unwrap_err().to_string();
+        assert!(message.contains("flow.pointer_sharpening.posterior_width"), "{message}");
+        let options = SamplingOptions { sharpening, ..SamplingOptions::new(4, 2, 3) };
+        let message = policy.predict(&observation, &options).unwrap_err().to_string();
+        assert!(message.contains("posterior_width"), "{message}");
+    }
+}
+
+#[test]
 fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     // A fresh model with the position pointer: its attention is spread over the scene, so
     // dividing the scores by a small temperature moves the pointed position.
@@ -994,20 +1043,36 @@ fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     };
     let trained = predict(PointerSharpening::OFF);
     // No step before flow time 0; a temperature of 1 divides nothing.
-    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.0, posterior: false }), trained);
-    assert_eq!(predict(PointerSharpening { temperature: 1.0, until: 1.0, posterior: false }), trained);
-    let half = predict(PointerSharpening { temperature: 0.05, until: 0.5, posterior: false });
+    assert_eq!(
+        predict(PointerSharpening { temperature: 0.05, until: 0.0, posterior: false, posterior_width: 0.0 }),
+        trained
+    );
+    assert_eq!(
+        predict(PointerSharpening { temperature: 1.0, until: 1.0, posterior: false, posterior_width: 0.0 }),
+        trained
+    );
+    let half = predict(PointerSharpening { temperature: 0.05, until: 0.5, posterior: false, posterior_width: 0.0 });
     assert_ne!(half, trained);
     // 4 steps at t = 0, 0.25, 0.5, 0.75: until 0.3 sharpens the same two steps as 0.5, 0.51 and
     // 1.0 sharpen more (t < until, strictly).
-    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.3, posterior: false }), half);
-    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 0.51, posterior: false }), half);
-    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 1.0, posterior: false }), half);
+    assert_eq!(
+        predict(PointerSharpening { temperature: 0.05, until: 0.3, posterior: false, posterior_width: 0.0 }),
+        half
+    );
+    assert_ne!(
+        predict(PointerSharpening { temperature: 0.05, until: 0.51, posterior: false, posterior_width: 0.0 }),
+        half
+    );
+    assert_ne!(
+        predict(PointerSharpening { temperature: 0.05, until: 1.0, posterior: false, posterior_width: 0.0 }),
+        half
+    );
     // The config refuses a temperature that is not positive and a flow time outside [0, 1].
     let mut bad = config.clone();
     bad.flow.pointer_sharpening.temperature = 0.0;
     let message = bad.validate().unwrap_err().to_string();
     assert!(message.contains("flow.pointer_sharpening.temperature"), "{message}");
-    bad.flow.pointer_sharpening = PointerSharpening { temperature: 0.1, until: 1.5, posterior: false };
+    bad.flow.pointer_sharpening =
+        PointerSharpening { temperature: 0.1, until: 1.5, posterior: false, posterior_width: 0.0 };
     assert!(bad.validate().unwrap_err().to_string().contains("flow.pointer_sharpening.until"));
 }

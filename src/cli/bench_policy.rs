@@ -289,6 +289,10 @@ pub struct HeldOutArgs {
     /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
     #[arg(long)]
     pointer_posterior: bool,
+    /// m: the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; turns the
+    /// posterior on); default: the checkpoint's.
+    #[arg(long, value_parser = super::non_negative_number)]
+    pointer_posterior_width: Option<f64>,
     #[arg(long)]
     json: bool,
 }
@@ -307,7 +311,8 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
         .flow
         .pointer_sharpening
         .with_temperature(args.pointer_temperature)
-        .with_posterior(args.pointer_posterior);
+        .with_posterior(args.pointer_posterior)
+        .with_posterior_width(args.pointer_posterior_width);
     let options = SamplingOptions { steps, samples, drs: true, seed: 0, consensus, sharpening };
     let report = heldout_errors(&mut policy, &train_set, &held_out, &options, &mut TaskBar::new("keyframes"))?;
     if args.json {
@@ -435,13 +440,18 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
         // Arms of one checkpoint differ only here (MODE and SHARP in docs/experiments.md).
         let sampling = |r: &SuccessRecord| {
             format!(
-                "weights {}, {} steps, {} samples ({}), pointer temperature {}{}, DRS {}",
+                "weights {}, {} steps, {} samples ({}), pointer temperature {}{}{}, DRS {}",
                 r.checkpoint_digest,
                 r.steps,
                 r.samples,
                 r.consensus.name(),
                 r.pointer_temperature,
                 if r.pointer_posterior { ", pointer posterior" } else { "" },
+                if r.pointer_posterior_width > 0.0 {
+                    format!(" (width {} m)", r.pointer_posterior_width)
+                } else {
+                    String::new()
+                },
                 r.drs
             )
         };

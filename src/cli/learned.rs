@@ -36,6 +36,10 @@ pub struct LearnedArgs {
     /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
     #[arg(long)]
     pub pointer_posterior: bool,
+    /// m: the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; turns the
+    /// posterior on); default: the checkpoint's.
+    #[arg(long, value_parser = super::non_negative_number)]
+    pub pointer_posterior_width: Option<f64>,
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]
     pub no_drs: bool,
@@ -84,7 +88,8 @@ impl LearnedArgs {
                 .flow
                 .pointer_sharpening
                 .with_temperature(self.pointer_temperature)
-                .with_posterior(self.pointer_posterior),
+                .with_posterior(self.pointer_posterior)
+                .with_posterior_width(self.pointer_posterior_width),
         };
         Ok(FlowRamActor::new(policy, options))
     }

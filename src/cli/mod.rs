@@ -134,6 +134,14 @@ fn positive_number(text: &str) -> Result<f64, String> {
     }
 }
 
+/// clap parser for a finite number at least 0 (`--pointer-posterior-width`).
+fn non_negative_number(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(v) if v.is_finite() && v >= 0.0 => Ok(v),
+        _ => Err(format!("expected a number at least 0, got `{text}`")),
+    }
+}
+
 /// clap parser for counts that must be at least 1 (`--samples`, `--steps`): 0 is refused at the
 /// command line, with what was expected, instead of deep inside the sampler.
 fn at_least_one(text: &str) -> Result<usize, String> {

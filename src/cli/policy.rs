@@ -119,6 +119,10 @@ pub struct PredictArgs {
     /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
     #[arg(long)]
     pointer_posterior: bool,
+    /// m: the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; turns the
+    /// posterior on); default: the checkpoint's.
+    #[arg(long, value_parser = super::non_negative_number)]
+    pointer_posterior_width: Option<f64>,
     /// The w/o-DRS ablation: geometric tokens sampled globally at every step.
     #[arg(long)]
     no_drs: bool,
@@ -150,6 +154,8 @@ struct PredictReport {
     consensus: &'static str,
     pointer_temperature: f64,
     pointer_posterior: bool,
+    /// m (0: candidates are points).
+    pointer_posterior_width: f64,
     /// The index in `predictions` of the sample a closed-loop run executes (their consensus).
     executed: usize,
     recorded: KeyframePose,
@@ -175,7 +181,8 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
             .flow
             .pointer_sharpening
             .with_temperature(args.pointer_temperature)
-            .with_posterior(args.pointer_posterior),
+            .with_posterior(args.pointer_posterior)
+            .with_posterior_width(args.pointer_posterior_width),
     };
     let Samples { poses: keyframes, pointers } = policy.predict_explained(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();
@@ -204,6 +211,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         consensus: options.consensus.name(),
         pointer_temperature: options.sharpening.temperature,
         pointer_posterior: options.sharpening.posterior,
+        pointer_posterior_width: options.sharpening.posterior_width,
         executed,
         recorded,
         predictions,

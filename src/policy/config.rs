@@ -327,6 +327,17 @@ pub struct PointerSharpening {
     /// not their mean). Inference only; false: as trained.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub posterior: bool,
+    /// m, with `posterior`: the keyframe's spread w about its candidate, so a1 ~ N(x_i + c, w^2)
+    /// and the likelihood's variance per axis is (1 - t)^2 + t^2 w^2 (w in that axis's normalised
+    /// units) instead of (1 - t)^2: a posterior that commits between candidates farther apart
+    /// than w and snaps less to the one nearest the noisy sample among those closer. 0: the
+    /// candidates are points (as shipped in session 30).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub posterior_width: f64,
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 fn half() -> f64 {
@@ -341,7 +352,7 @@ impl Default for PointerSharpening {
 
 impl PointerSharpening {
     /// As trained at every step.
-    pub const OFF: Self = Self { temperature: 1.0, until: 0.5, posterior: false };
+    pub const OFF: Self = Self { temperature: 1.0, until: 0.5, posterior: false, posterior_width: 0.0 };
 
     /// This sharpening with its temperature replaced where one is given (a command line's
     /// `--pointer-temperature` over the checkpoint's setting).
@@ -352,6 +363,41 @@ impl PointerSharpening {
     /// This sharpening, made the posterior where a command line asks (`--pointer-posterior`).
     pub fn with_posterior(self, posterior: bool) -> Self {
         Self { posterior: self.posterior || posterior, ..self }
+    }
+
+    /// This sharpening with the posterior's candidate width replaced where one is given (a
+    /// command line's `--pointer-posterior-width`, which also turns the posterior on).
+    pub fn with_posterior_width(self, width: Option<f64>) -> Self {
+        match width {
+            Some(posterior_width) => Self { posterior: true, posterior_width, ..self },
+            None => self,
+        }
+    }
+
+    /// Errors: [`PolicyError::Invalid`] naming the field unless the temperature is positive, the
+    /// flow time `until` in [0, 1] and the posterior's width finite and at least 0 (0 without the
+    /// posterior).
+    pub fn validate(&self) -> Result<()> {
+        let bad = |field: &str, expected: &str, got: String| {
+            Err(PolicyError::Invalid(format!("flow.pointer_sharpening.{field} must be {expected}; got {got}")))
+        };
+        if !(self.temperature.is_finite() && self.temperature > 0.0) {
+            return bad("temperature", "positive (1: off)", self.temperature.to_string());
+        }
+        if !(0.0..=1.0).contains(&self.until) {
+            return bad("until", "a flow time in [0, 1]", self.until.to_string());
+        }
+        if !(self.posterior_width.is_finite() && self.posterior_width >= 0.0) {
+            return bad("posterior_width", "a width in metres, at least 0 (0: off)", self.posterior_width.to_string());
+        }
+        if self.posterior_width > 0.0 && !self.posterior {
+            return bad(
+                "posterior_width",
+                "0 unless posterior = true (the width is the posterior's; set posterior = true or drop the width)",
+                self.posterior_width.to_string(),
+            );
+        }
+        Ok(())
     }
 
     /// The pointer's temperature at flow time `t`.
@@ -490,13 +536,7 @@ impl PolicyConfig {
                 );
             }
         }
-        let sharpening = self.flow.pointer_sharpening;
-        if !(sharpening.temperature.is_finite() && sharpening.temperature > 0.0) {
-            return bad("flow.pointer_sharpening.temperature", "positive (1: off)", sharpening.temperature.to_string());
-        }
-        if !(0.0..=1.0).contains(&sharpening.until) {
-            return bad("flow.pointer_sharpening.until", "a flow time in [0, 1]", sharpening.until.to_string());
-        }
+        self.flow.pointer_sharpening.validate().map_err(|e| PolicyError::Invalid(format!("policy config: {e}")))?;
         if !self.model.channels.is_multiple_of(6) {
             return bad(
                 "model.channels",

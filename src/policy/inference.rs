@@ -17,7 +17,7 @@ use crate::policy::config::{Consensus, PointerSharpening, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{euler_sample, sample_source_noise};
 use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
-use crate::policy::network::model::{EncodedObservation, FlowRam, device};
+use crate::policy::network::model::{EncodedObservation, FlowRam, PosteriorAt, device};
 use crate::policy::network::text_encoder::TextEncoder;
 use crate::policy::runtime::in_pool;
 use crate::policy::scene::observation::{ACTION_DIMS, KeyframePose, Observation};
@@ -190,6 +190,7 @@ impl Policy {
                 options.steps, options.samples
             )));
         }
+        options.sharpening.validate()?;
         let s = options.samples;
         let encoded = encoded.repeat(s)?;
         let schedule = options.schedule(config.radius_schedule);
@@ -199,13 +200,17 @@ impl Policy {
         let shared = vec![0usize; s];
         let mut open = None;
         let mut last_pointers = None;
+        // the posterior's candidate width in each axis's normalised units (2 / the box's extent)
+        let (low, high) = (config.observation.workspace.min(), config.observation.workspace.max());
+        let width: [f32; 3] =
+            std::array::from_fn(|i| (2.0 * options.sharpening.posterior_width) as f32 / (high[i] - low[i]));
         let a = euler_sample(a0, options.steps, |a, t| {
             let rows: Vec<[f32; ACTION_DIMS]> =
                 a.to_vec2::<f32>()?.into_iter().map(|r| std::array::from_fn(|i| r[i])).collect();
             let t0 = Instant::now();
             let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
             let t1 = Instant::now();
-            let posterior = options.sharpening.posterior.then_some(t);
+            let posterior = options.sharpening.posterior.then_some(PosteriorAt { t, width });
             let out = self.model.step_sharpened(&encoded, &suffix, options.sharpening.temperature_at(t), posterior)?;
             profile.selection_ms += (t1 - t0).as_secs_f64() * 1e3;
             profile.network_ms += t1.elapsed().as_secs_f64() * 1e3;

@@ -159,6 +159,10 @@ pub struct SuccessRecord {
     /// false, as trained, when absent).
     #[serde(default)]
     pub pointer_posterior: bool,
+    /// m, the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; 0 when
+    /// absent).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub pointer_posterior_width: f64,
     pub drs: bool,
     pub cameras: Vec<String>,
     pub shard: Shard,
@@ -171,6 +175,10 @@ fn one_sample() -> usize {
 
 fn as_trained() -> f64 {
     1.0
+}
+
+fn is_zero(x: &f64) -> bool {
+    *x == 0.0
 }
 
 impl SuccessRecord {
@@ -198,6 +206,7 @@ impl SuccessRecord {
             consensus: actor.options.consensus,
             pointer_temperature: actor.options.sharpening.temperature,
             pointer_posterior: actor.options.sharpening.posterior,
+            pointer_posterior_width: actor.options.sharpening.posterior_width,
             drs: actor.options.samples_with_drs(actor.policy.config().radius_schedule),
             cameras: options.cameras.clone(),
             shard: options.shard,
@@ -210,7 +219,7 @@ impl SuccessRecord {
         let fields = |r: &Self| {
             format!(
                 "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, consensus {}, \
-                 pointer temperature {}, pointer posterior {}, drs {}, cameras {:?}",
+                 pointer temperature {}, pointer posterior {} (width {} m), drs {}, cameras {:?}",
                 r.checkpoint_digest,
                 r.tasks,
                 r.episodes,
@@ -221,6 +230,7 @@ impl SuccessRecord {
                 r.consensus.name(),
                 r.pointer_temperature,
                 r.pointer_posterior,
+                r.pointer_posterior_width,
                 r.drs,
                 r.cameras
             )
@@ -447,6 +457,9 @@ pub struct HeldOutReport {
     pub pointer_temperature: f64,
     /// `flow.pointer_sharpening.posterior` (false: as trained).
     pub pointer_posterior: bool,
+    /// m, `flow.pointer_sharpening.posterior_width` (0: candidates are points).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub pointer_posterior_width: f64,
     pub model: Errors,
     pub training_mean: Errors,
     pub task_mean: Errors,
@@ -732,6 +745,7 @@ pub fn heldout_errors(
         consensus: options.consensus,
         pointer_temperature: options.sharpening.temperature,
         pointer_posterior: options.sharpening.posterior,
+        pointer_posterior_width: options.sharpening.posterior_width,
         model: all.model,
         training_mean: all.training_mean,
         task_mean: all.task_mean,

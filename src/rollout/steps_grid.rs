@@ -67,14 +67,20 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
             )));
         }
         let setting = |r: &SuccessRecord| {
-            let sampling = (r.samples, r.consensus, r.pointer_temperature.to_bits(), r.pointer_posterior);
+            let sampling = (
+                r.samples,
+                r.consensus,
+                r.pointer_temperature.to_bits(),
+                r.pointer_posterior,
+                r.pointer_posterior_width.to_bits(),
+            );
             (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), sampling)
         };
         if setting(record) != setting(first) {
             return Err(grid_error(format!(
                 "{} and {} are not on the same episodes and sampling: tasks {:?}, seeds {}+{}, max keyframes {}, \
-                 cameras {:?}, samples {} ({}, pointer temperature {}, posterior {}) against tasks {:?}, seeds {}+{}, \
-                 max keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {}, posterior {})",
+                 cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m) against tasks {:?}, seeds {}+{}, \
+                 max keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m)",
                 path.display(),
                 first_path.display(),
                 record.tasks,
@@ -86,6 +92,7 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 record.consensus.name(),
                 record.pointer_temperature,
                 record.pointer_posterior,
+                record.pointer_posterior_width,
                 first.tasks,
                 first.seed,
                 first.episodes,
@@ -94,7 +101,8 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 first.samples,
                 first.consensus.name(),
                 first.pointer_temperature,
-                first.pointer_posterior
+                first.pointer_posterior,
+                first.pointer_posterior_width
             )));
         }
         if let Some(twin) = cells.iter().find(|c| {
@@ -355,6 +363,7 @@ mod tests {
             consensus: Consensus::Medoid,
             pointer_temperature: 1.0,
             pointer_posterior: false,
+            pointer_posterior_width: 0.0,
             drs,
             cameras: vec!["front".into()],
             shard: Shard::WHOLE,

@@ -290,12 +290,21 @@ impl PoolingQuery {
 }
 
 /// What the position pointer's posterior needs (`flow.pointer_sharpening.posterior`): the noisy
-/// position a_t [B, 3], the position head's offset [B, 3] and the flow time.
+/// position a_t [B, 3], the position head's offset [B, 3], the flow time and the candidates'
+/// width per axis in normalised units (`posterior_width`; zeros: points).
 #[derive(Debug, Clone, Copy)]
 struct Posterior<'a> {
     position: &'a Tensor,
     offset: &'a Tensor,
     t: f32,
+    width: [f32; 3],
+}
+
+/// The flow time and the candidates' width per axis (normalised units) of a posterior step.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PosteriorAt {
+    pub t: f32,
+    pub width: [f32; 3],
 }
 
 /// The position pointer (`model.position_pointer`): the predicted position as an attention over
@@ -345,13 +354,25 @@ impl PositionPointer {
         if temperature != 1.0 {
             scores = scores.affine(1.0 / temperature, 0.0)?;
         }
-        if let Some(Posterior { position, offset, t }) = posterior {
-            // log N(a_t; t (x_i + c), (1 - t)^2 I) up to a constant, per candidate i
+        if let Some(Posterior { position, offset, t, width }) = posterior {
+            // log N(a_t; t (x_i + c), diag((1 - t)^2 + t^2 w^2)) up to a constant, per candidate i
             let remaining = f64::from(1.0 - t).max(1e-3);
             let centres = xyz.broadcast_add(&offset.unsqueeze(1)?)?.affine(f64::from(t), 0.0)?;
-            let squared = centres.broadcast_sub(&position.unsqueeze(1)?)?.sqr()?.sum(2)?;
-            let log_likelihood = squared.affine(-0.5 / (remaining * remaining), 0.0)?.unsqueeze(1)?;
-            scores = scores.add(&log_likelihood)?;
+            let squared = centres.broadcast_sub(&position.unsqueeze(1)?)?.sqr()?;
+            let log_likelihood = if width == [0.0; 3] {
+                squared.sum(2)?.affine(-0.5 / (remaining * remaining), 0.0)?
+            } else {
+                let precision: Vec<f32> = width
+                    .iter()
+                    .map(|&w| {
+                        let spread = f64::from(t) * f64::from(w);
+                        (-0.5 / (remaining * remaining + spread * spread)) as f32
+                    })
+                    .collect();
+                let precision = Tensor::from_vec(precision, 3, squared.device())?;
+                squared.broadcast_mul(&precision)?.sum(2)?
+            };
+            scores = scores.add(&log_likelihood.unsqueeze(1)?)?;
         }
         let log_weights = candle_nn::ops::log_softmax(&scores, 2)?;
         let pointed = log_weights.exp()?.matmul(&xyz)?.squeeze(1)?;
@@ -659,7 +680,7 @@ impl FlowRam {
         pointer: Option<(&PointerMemory, &Tensor, &Tensor)>,
         goal: Option<&Tensor>,
         pointer_temperature: f64,
-        posterior: Option<(&Tensor, f32)>,
+        posterior: Option<(&Tensor, PosteriorAt)>,
     ) -> Result<Velocity> {
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
@@ -667,7 +688,12 @@ impl FlowRam {
         let mut rotation = self.rotation_head.forward(last)?;
         match (&self.position_pointer, pointer) {
             (Some(p), Some((memory, geometric, xyz))) => {
-                let posterior = posterior.map(|(a_t, t)| Posterior { position: a_t, offset: &position, t });
+                let posterior = posterior.map(|(a_t, PosteriorAt { t, width })| Posterior {
+                    position: a_t,
+                    offset: &position,
+                    t,
+                    width,
+                });
                 let (pointed, log_weights, candidates) =
                     p.point(memory, geometric, xyz, last, pointer_temperature, posterior)?;
                 position = position.add(&pointed)?;
@@ -760,14 +786,15 @@ impl FlowRam {
     }
 
     /// [`Self::step`] with the position pointer's scores divided by `pointer_temperature` and,
-    /// with `posterior_at` the flow time, the pointer made the posterior given the noisy position
-    /// (`flow.pointer_sharpening`; no effect without `model.position_pointer`).
+    /// with `posterior_at` the flow time (and candidate width), the pointer made the posterior
+    /// given the noisy position (`flow.pointer_sharpening`; no effect without
+    /// `model.position_pointer`).
     pub fn step_sharpened(
         &self,
         encoded: &EncodedObservation,
         suffix: &SuffixInputs,
         pointer_temperature: f64,
-        posterior_at: Option<f32>,
+        posterior_at: Option<PosteriorAt>,
     ) -> Result<Velocity> {
         let (tokens, condition) =
             self.suffix_tokens(&encoded.features, &encoded.condition, encoded.goal.as_ref(), suffix)?;

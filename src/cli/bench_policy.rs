@@ -22,7 +22,7 @@ use flowram::stats::{mcnemar_exact_p, median, wilson_interval};
 use flowram::tasks;
 use serde::Serialize;
 
-use super::learned::LearnedArgs;
+use super::learned::{LearnedArgs, SharpeningArgs};
 use super::policy::load_training_data;
 use super::progress::TaskBar;
 
@@ -281,18 +281,8 @@ pub struct HeldOutArgs {
     /// Which sample is scored: medoid or mode (default: the config's flow.consensus).
     #[arg(long, value_parser = super::consensus_rule)]
     consensus: Option<Consensus>,
-    /// The position pointer's temperature over the first Euler steps (default: the config's
-    /// flow.pointer_sharpening.temperature; 1: as trained).
-    #[arg(long, value_parser = super::positive_number)]
-    pointer_temperature: Option<f64>,
-    /// The position pointer as the posterior given the noisy position at every Euler step
-    /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
-    #[arg(long)]
-    pointer_posterior: bool,
-    /// m: the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; turns the
-    /// posterior on); default: the checkpoint's.
-    #[arg(long, value_parser = super::non_negative_number)]
-    pointer_posterior_width: Option<f64>,
+    #[command(flatten)]
+    sharpening: SharpeningArgs,
     #[arg(long)]
     json: bool,
 }
@@ -306,13 +296,7 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     let held_out = load_training_data(&args.data)?;
     let samples = args.samples.unwrap_or(policy.config().flow.consensus_samples);
     let consensus = args.consensus.unwrap_or(policy.config().flow.consensus);
-    let sharpening = policy
-        .config()
-        .flow
-        .pointer_sharpening
-        .with_temperature(args.pointer_temperature)
-        .with_posterior(args.pointer_posterior)
-        .with_posterior_width(args.pointer_posterior_width);
+    let sharpening = args.sharpening.over(policy.config().flow.pointer_sharpening);
     let options = SamplingOptions { steps, samples, drs: true, seed: 0, consensus, sharpening };
     let report = heldout_errors(&mut policy, &train_set, &held_out, &options, &mut TaskBar::new("keyframes"))?;
     if args.json {

@@ -3,10 +3,40 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use flowram::policy::config::Consensus;
+use flowram::policy::config::{Consensus, PointerSharpening};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
+
+/// The position pointer's sampling options (`flow.pointer_sharpening`; README, "Inference"),
+/// shared by every command that samples a checkpoint: each, when given, replaces the
+/// checkpoint's setting.
+#[derive(Debug, Args)]
+pub struct SharpeningArgs {
+    /// The position pointer's temperature over the first Euler steps (those at flow time below
+    /// the checkpoint's flow.pointer_sharpening.until, 0.5 by default); 1: as trained (default:
+    /// the checkpoint's flow.pointer_sharpening.temperature).
+    #[arg(long, value_parser = super::positive_number)]
+    pub pointer_temperature: Option<f64>,
+    /// The position pointer as the posterior given the noisy position at every Euler step
+    /// (`flow.pointer_sharpening.posterior`); default: the checkpoint's.
+    #[arg(long)]
+    pub pointer_posterior: bool,
+    /// m: the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; turns the
+    /// posterior on); default: the checkpoint's.
+    #[arg(long, value_parser = super::non_negative_number)]
+    pub pointer_posterior_width: Option<f64>,
+}
+
+impl SharpeningArgs {
+    /// The checkpoint's `sharpening` with what the command line gave in its place.
+    pub fn over(&self, sharpening: PointerSharpening) -> PointerSharpening {
+        sharpening
+            .with_temperature(self.pointer_temperature)
+            .with_posterior(self.pointer_posterior)
+            .with_posterior_width(self.pointer_posterior_width)
+    }
+}
 
 /// How a learned policy runs closed loop.
 #[derive(Debug, Args)]
@@ -27,19 +57,8 @@ pub struct LearnedArgs {
     /// others within 2 cm) (default: the checkpoint's flow.consensus).
     #[arg(long, value_parser = super::consensus_rule)]
     pub consensus: Option<Consensus>,
-    /// The position pointer's temperature over the first Euler steps (those at flow time below
-    /// the checkpoint's flow.pointer_sharpening.until, 0.5 by default); 1: as trained (default:
-    /// the checkpoint's flow.pointer_sharpening.temperature).
-    #[arg(long, value_parser = super::positive_number)]
-    pub pointer_temperature: Option<f64>,
-    /// The position pointer as the posterior given the noisy position at every Euler step
-    /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
-    #[arg(long)]
-    pub pointer_posterior: bool,
-    /// m: the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; turns the
-    /// posterior on); default: the checkpoint's.
-    #[arg(long, value_parser = super::non_negative_number)]
-    pub pointer_posterior_width: Option<f64>,
+    #[command(flatten)]
+    pub sharpening: SharpeningArgs,
     /// Global geometric tokens at every step (the w/o-DRS ablation).
     #[arg(long)]
     pub no_drs: bool,
@@ -83,13 +102,7 @@ impl LearnedArgs {
             drs: !self.no_drs,
             seed: 0,
             consensus: self.consensus.unwrap_or(policy.config().flow.consensus),
-            sharpening: policy
-                .config()
-                .flow
-                .pointer_sharpening
-                .with_temperature(self.pointer_temperature)
-                .with_posterior(self.pointer_posterior)
-                .with_posterior_width(self.pointer_posterior_width),
+            sharpening: self.sharpening.over(policy.config().flow.pointer_sharpening),
         };
         Ok(FlowRamActor::new(policy, options))
     }

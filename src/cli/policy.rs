@@ -14,6 +14,7 @@ use flowram::policy::training::trainer::train;
 use flowram::rollout::collection::stale_expert;
 use serde::Serialize;
 
+use super::learned::SharpeningArgs;
 use super::progress::TrainBar;
 
 /// Loads training datasets, reporting the episode files it had to skip and the datasets
@@ -111,18 +112,8 @@ pub struct PredictArgs {
     /// Which sample is executed: medoid or mode (default: the checkpoint's flow.consensus).
     #[arg(long, value_parser = super::consensus_rule)]
     consensus: Option<Consensus>,
-    /// The position pointer's temperature over the first Euler steps, as `run` takes it (default:
-    /// the checkpoint's flow.pointer_sharpening.temperature).
-    #[arg(long, value_parser = super::positive_number)]
-    pointer_temperature: Option<f64>,
-    /// The position pointer as the posterior given the noisy position at every Euler step
-    /// (`flow.pointer_sharpening.posterior`; README, "Inference"); default: the checkpoint's.
-    #[arg(long)]
-    pointer_posterior: bool,
-    /// m: the posterior's candidate width (`flow.pointer_sharpening.posterior_width`; turns the
-    /// posterior on); default: the checkpoint's.
-    #[arg(long, value_parser = super::non_negative_number)]
-    pointer_posterior_width: Option<f64>,
+    #[command(flatten)]
+    sharpening: SharpeningArgs,
     /// The w/o-DRS ablation: geometric tokens sampled globally at every step.
     #[arg(long)]
     no_drs: bool,
@@ -176,13 +167,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         drs: !args.no_drs,
         seed: args.seed,
         consensus: args.consensus.unwrap_or(policy.config().flow.consensus),
-        sharpening: policy
-            .config()
-            .flow
-            .pointer_sharpening
-            .with_temperature(args.pointer_temperature)
-            .with_posterior(args.pointer_posterior)
-            .with_posterior_width(args.pointer_posterior_width),
+        sharpening: args.sharpening.over(policy.config().flow.pointer_sharpening),
     };
     let Samples { poses: keyframes, pointers } = policy.predict_explained(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();

@@ -290,14 +290,13 @@ impl PoolingQuery {
 }
 
 /// What the position pointer's posterior needs (`flow.pointer_sharpening.posterior`): the noisy
-/// position a_t [B, 3], the position head's offset [B, 3], the flow time and the candidates'
-/// width per axis in normalised units (`posterior_width`; zeros: points).
+/// position a_t [B, 3], the position head's offset [B, 3], and the step's flow time and
+/// candidate width.
 #[derive(Debug, Clone, Copy)]
 struct Posterior<'a> {
     position: &'a Tensor,
     offset: &'a Tensor,
-    t: f32,
-    width: [f32; 3],
+    at: PosteriorAt,
 }
 
 /// The flow time and the candidates' width per axis (normalised units) of a posterior step.
@@ -354,11 +353,12 @@ impl PositionPointer {
         if temperature != 1.0 {
             scores = scores.affine(1.0 / temperature, 0.0)?;
         }
-        if let Some(Posterior { position, offset, t, width }) = posterior {
+        if let Some(Posterior { position, offset, at: PosteriorAt { t, width } }) = posterior {
             // log N(a_t; t (x_i + c), diag((1 - t)^2 + t^2 w^2)) up to a constant, per candidate i
             let remaining = f64::from(1.0 - t).max(1e-3);
             let centres = xyz.broadcast_add(&offset.unsqueeze(1)?)?.affine(f64::from(t), 0.0)?;
             let squared = centres.broadcast_sub(&position.unsqueeze(1)?)?.sqr()?;
+            // points (w = 0) keep session 30's arithmetic, so the shipped samples stay bit for bit
             let log_likelihood = if width == [0.0; 3] {
                 squared.sum(2)?.affine(-0.5 / (remaining * remaining), 0.0)?
             } else {
@@ -688,12 +688,7 @@ impl FlowRam {
         let mut rotation = self.rotation_head.forward(last)?;
         match (&self.position_pointer, pointer) {
             (Some(p), Some((memory, geometric, xyz))) => {
-                let posterior = posterior.map(|(a_t, PosteriorAt { t, width })| Posterior {
-                    position: a_t,
-                    offset: &position,
-                    t,
-                    width,
-                });
+                let posterior = posterior.map(|(a_t, at)| Posterior { position: a_t, offset: &position, at });
                 let (pointed, log_weights, candidates) =
                     p.point(memory, geometric, xyz, last, pointer_temperature, posterior)?;
                 position = position.add(&pointed)?;

@@ -955,12 +955,19 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
     assert!(places > 1e-2, "the tokens' places in the instruction did not reach the pooling ({places})");
 }
 
-#[test]
-fn the_pointers_posterior_is_as_trained_at_flow_time_0_and_moves_the_later_steps() {
+/// A fresh model with the position pointer (its attention spread over the scene, so the
+/// pointer's sampling options move its samples), its config, and an observation of the
+/// demonstration.
+fn fresh_pointer_policy() -> (PolicyConfig, Policy, Observation) {
     let config = tiny_config();
     assert!(config.model.position_pointer);
-    let mut policy = Policy::random(&config, text()).unwrap();
-    let observation = Observation::from_episode(demonstration(), 1).unwrap();
+    let policy = Policy::random(&config, text()).unwrap();
+    (config, policy, Observation::from_episode(demonstration(), 1).unwrap())
+}
+
+#[test]
+fn the_pointers_posterior_is_as_trained_at_flow_time_0_and_moves_the_later_steps() {
+    let (config, mut policy, observation) = fresh_pointer_policy();
     let mut explain = |steps: usize, posterior: bool| {
         let sharpening = PointerSharpening { posterior, ..PointerSharpening::OFF };
         let options = SamplingOptions { sharpening, ..SamplingOptions::new(steps, 2, 3) };
@@ -985,9 +992,7 @@ fn the_pointers_posterior_is_as_trained_at_flow_time_0_and_moves_the_later_steps
 
 #[test]
 fn the_posteriors_candidate_width_spans_points_to_as_trained_and_is_validated() {
-    let config = tiny_config();
-    let mut policy = Policy::random(&config, text()).unwrap();
-    let observation = Observation::from_episode(demonstration(), 1).unwrap();
+    let (config, mut policy, observation) = fresh_pointer_policy();
     let mut explain = |sharpening: PointerSharpening| {
         let options = SamplingOptions { sharpening, ..SamplingOptions::new(4, 2, 3) };
         policy.predict_explained(&observation, &options).unwrap()
@@ -1033,10 +1038,7 @@ fn the_posteriors_candidate_width_spans_points_to_as_trained_and_is_validated() 
 fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     // A fresh model with the position pointer: its attention is spread over the scene, so
     // dividing the scores by a small temperature moves the pointed position.
-    let config = tiny_config();
-    assert!(config.model.position_pointer);
-    let mut policy = Policy::random(&config, text()).unwrap();
-    let observation = Observation::from_episode(demonstration(), 1).unwrap();
+    let (config, mut policy, observation) = fresh_pointer_policy();
     let mut predict = |sharpening: PointerSharpening| {
         let options = SamplingOptions { sharpening, ..SamplingOptions::new(4, 2, 3) };
         policy.predict(&observation, &options).unwrap()

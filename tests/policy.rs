@@ -955,6 +955,87 @@ fn conditioned_pooling_lets_the_keyframe_index_choose_the_instruction_words() {
     assert!(places > 1e-2, "the tokens' places in the instruction did not reach the pooling ({places})");
 }
 
+#[test]
+fn the_language_attention_starts_switched_off_reads_the_words_and_caches_like_the_prefix() {
+    use candle_core::{Device, Tensor};
+    use flowram::policy::inputs::{Augmentation, prefix_inputs, suffix_inputs};
+    let mut config = tiny_config();
+    config.model.language_attention_heads = 7;
+    let err = config.validate().unwrap_err().to_string();
+    assert!(err.contains("model.language_attention_heads") && err.contains("120"), "{err}");
+    config.model.language_attention_heads = 4;
+    config.validate().unwrap();
+    // off (the default) is not written, so configs without it read and digest as before
+    let json = serde_json::to_string(&tiny_config().model).unwrap();
+    assert!(!json.contains("language_attention"), "{json}");
+    let json = serde_json::to_string(&config.model).unwrap();
+    assert_eq!(serde_json::from_str::<flowram::policy::config::ModelConfig>(&json).unwrap(), config.model);
+
+    let mut text = text();
+    let observation = Observation::from_episode(demonstration(), 1).unwrap();
+    let prepared = flowram::policy::inputs::prepare(&observation, &config, &mut text).unwrap();
+    let observations = [(&prepared, Augmentation::NONE)];
+    let prefix = prefix_inputs(&config, &observations).unwrap();
+    let action = [[0.1f32, -0.2, 0.3, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]];
+    let suffix = suffix_inputs(&config, &observations, &[0], &action, &[0.6], &config.radius_schedule).unwrap();
+    // another instruction's tokens: the first tokens' features reversed in order
+    let lt = config.observation.language_tokens;
+    let reversed: Vec<u32> = (0..lt as u32).rev().collect();
+    let other = flowram::policy::network::model::PrefixInputs {
+        language: prefix.language.index_select(&Tensor::new(reversed, &Device::Cpu).unwrap(), 1).unwrap(),
+        ..prefix.clone()
+    };
+    let mut rng = <rand::rngs::StdRng as rand::SeedableRng>::seed_from_u64(3);
+    let c = config.model.channels;
+    let out: Vec<f32> = (0..c * c).map(|_| 0.2 * flowram::policy::flow::standard_normal(&mut rng) as f32).collect();
+    let out = Tensor::from_vec(out, (c, c), &Device::Cpu).unwrap();
+    // The velocity of one flow step from the training forward and from the cached inference,
+    // the same seeded weights every time (`trained`: the output projection set).
+    let velocity = |config: &PolicyConfig, prefix: &flowram::policy::network::model::PrefixInputs, trained: bool| {
+        let varmap = candle_nn::VarMap::new();
+        let vb = flowram::policy::network::init::seeded_var_builder(&varmap, 0, &Device::Cpu);
+        let model = flowram::policy::network::model::FlowRam::new(config, vb).unwrap();
+        let vars = varmap.data().lock().unwrap();
+        assert_eq!(vars.contains_key("language_attention.out.weight"), config.model.language_attention_heads > 0);
+        if trained {
+            vars["language_attention.out.weight"].set(&out).unwrap();
+        }
+        drop(vars);
+        let whole = model.forward(prefix, &suffix).unwrap().velocity.to_vec2::<f32>().unwrap()[0].clone();
+        let encoded = model.encode(prefix).unwrap().repeat(3).unwrap();
+        let suffix3 = suffix_inputs(
+            config,
+            &[(&prepared, Augmentation::NONE); 3],
+            &[0, 0, 0],
+            &[action[0]; 3],
+            &[0.6; 3],
+            &config.radius_schedule,
+        )
+        .unwrap();
+        let cached = model.step(&encoded, &suffix3).unwrap().velocity.to_vec2::<f32>().unwrap()[2].clone();
+        for (a, b) in whole.iter().zip(&cached) {
+            assert!((a - b).abs() < 1e-4, "training forward {whole:?}, cached inference {cached:?}");
+        }
+        whole
+    };
+    let mut off = config.clone();
+    off.model.language_attention_heads = 0;
+    // fresh: the output projection is zero, so the model is exactly the one without it
+    let without = velocity(&off, &prefix, false);
+    assert_eq!(velocity(&config, &prefix, false), without);
+    // with an output projection the prediction moves, and by how much depends on the words
+    let read = velocity(&config, &prefix, true);
+    let moved: Vec<f32> = read.iter().zip(&without).map(|(a, b)| a - b).collect();
+    assert!(moved.iter().any(|m| m.abs() > 1e-3), "the attention did not move the prediction: {moved:?}");
+    let without_other = velocity(&off, &other, false);
+    let moved_other: Vec<f32> =
+        velocity(&config, &other, true).iter().zip(&without_other).map(|(a, b)| a - b).collect();
+    assert!(
+        moved.iter().zip(&moved_other).any(|(a, b)| (a - b).abs() > 1e-4),
+        "what the attention adds did not depend on the instruction's tokens: {moved:?} vs {moved_other:?}"
+    );
+}
+
 /// A fresh model with the position pointer (its attention spread over the scene, so the
 /// pointer's sampling options move its samples), its config, and an observation of the
 /// demonstration.

@@ -69,6 +69,10 @@ pub struct ObservationConfig {
     pub proprio_history: usize,
 }
 
+fn is_off(n: &usize) -> bool {
+    *n == 0
+}
+
 /// The most gripper poses `observation.proprio_history` may ask for.
 pub const MAX_PROPRIO_HISTORY: usize = 8;
 
@@ -131,6 +135,18 @@ pub struct ModelConfig {
     /// white, silver, gray and black). Off (the paper): tokens carry the encoder's features only.
     #[serde(default)]
     pub point_colour: bool,
+    /// Heads of an attention from the action token's output to the instruction's tokens, added
+    /// to that output before the heads read it (0: off). Keys are the tokens' MiniLM features
+    /// plus a learned embedding of their place in the instruction; the query is the action
+    /// token's output, which knows the phase (the AdaLN condition carries proprioception and
+    /// `observation.keyframe_index`) and where the noisy sample is; the output projection starts
+    /// at zero, so a new model starts as without it. 3D Diffuser Actor attends from its queries
+    /// to every language token in every layer; here the one pooled instruction vector
+    /// (`instruction_pooling`) had to name the k-th colour of "push the red button, then ...",
+    /// and the second button's approach went to the third-named button in a third of held-out
+    /// three-button episodes (docs/experiments.md, session 31). Must divide `channels`.
+    #[serde(default, skip_serializing_if = "is_off")]
+    pub language_attention_heads: usize,
     /// Place the position relative to two pointed positions: the position pointer's p and the
     /// instruction pointer's g (needs both pointers), as p + beta * (p - g) + offset, with beta a
     /// linear function of the action token's output (zero at initialisation, so training starts
@@ -542,6 +558,14 @@ impl PolicyConfig {
                 "model.channels",
                 "a multiple of 6 (the 3D positional encoding uses sin and cos per axis)",
                 self.model.channels.to_string(),
+            );
+        }
+        let heads = self.model.language_attention_heads;
+        if heads > 0 && !self.model.channels.is_multiple_of(heads) {
+            return bad(
+                "model.language_attention_heads",
+                &format!("0 (off) or a divisor of model.channels ({})", self.model.channels),
+                heads.to_string(),
             );
         }
         if !(1..=MAX_PROPRIO_HISTORY).contains(&o.proprio_history) {

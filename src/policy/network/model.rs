@@ -42,7 +42,9 @@
 //! The instruction these read is one vector pooled from its tokens (`model.instruction_pooling`):
 //! the sentence embedding, a learned softmax pooling, or that pooling with scores that also depend
 //! on the condition (proprioception, keyframe index), so that a sequence's phase can choose its
-//! word.
+//! word. With `model.language_attention_heads`, the action token's output also attends to every
+//! instruction token before the heads read it (as 3D Diffuser Actor's queries attend to the
+//! language), so each flow step can read the word its phase needs.
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
@@ -137,6 +139,8 @@ pub struct EncodedObservation {
     pub pointer: Option<PointerMemory>,
     /// The instruction pointer's pointed position [B, 3], normalised (`model.instruction_pointer`).
     pub goal: Option<Tensor>,
+    /// The instruction's keys and values for `model.language_attention_heads`.
+    pub language: Option<LanguageMemory>,
 }
 
 /// The prefix's part of the position pointer (`model.position_pointer`): the semantic tokens'
@@ -185,7 +189,100 @@ impl EncodedObservation {
             condition: self.condition.repeat((n, 1))?,
             pointer: self.pointer.as_ref().map(|p| p.repeat(n)).transpose()?,
             goal: self.goal.as_ref().map(|g| g.repeat((n, 1))).transpose()?,
+            language: self.language.as_ref().map(|m| m.repeat(n)).transpose()?,
         })
+    }
+}
+
+/// The instruction's part of `model.language_attention_heads`, once per observation: keys and
+/// values [B, H, Lt, C / H] and the padding mask [B, 1, 1, Lt] (-1e9 on padding, else 0).
+#[derive(Debug, Clone)]
+pub struct LanguageMemory {
+    keys: Tensor,
+    values: Tensor,
+    mask: Tensor,
+}
+
+impl LanguageMemory {
+    fn index_select(&self, rows: &Tensor) -> Result<Self> {
+        Ok(Self {
+            keys: self.keys.index_select(rows, 0)?,
+            values: self.values.index_select(rows, 0)?,
+            mask: self.mask.index_select(rows, 0)?,
+        })
+    }
+
+    fn repeat(&self, n: usize) -> Result<Self> {
+        Ok(Self {
+            keys: self.keys.repeat((n, 1, 1, 1))?,
+            values: self.values.repeat((n, 1, 1, 1))?,
+            mask: self.mask.repeat((n, 1, 1, 1))?,
+        })
+    }
+}
+
+/// `model.language_attention_heads`: multi-head attention from the action token's output to the
+/// instruction's tokens (keys: the token's features plus the embedding of its place), added to
+/// that output through a zero-initialised projection.
+#[derive(Debug, Clone)]
+struct LanguageAttention {
+    heads: usize,
+    query: Linear,
+    key: Linear,
+    value: Linear,
+    /// [Lt, C]
+    index: Tensor,
+    out: Linear,
+}
+
+impl LanguageAttention {
+    fn new(c: usize, heads: usize, tokens: usize, vb: VarBuilder) -> Result<Self> {
+        let out = vb.pp("out");
+        let w = out.get_with_hints((c, c), "weight", candle_nn::Init::Const(0.0))?;
+        let b = out.get_with_hints(c, "bias", candle_nn::Init::Const(0.0))?;
+        Ok(Self {
+            heads,
+            query: candle_nn::linear_no_bias(c, c, vb.pp("query"))?,
+            key: candle_nn::linear_no_bias(TEXT_HIDDEN_SIZE, c, vb.pp("key"))?,
+            value: candle_nn::linear(TEXT_HIDDEN_SIZE, c, vb.pp("value"))?,
+            index: vb.get_with_hints((tokens, c), "index", candle_nn::Init::Randn { mean: 0.0, stdev: 0.02 })?,
+            out: Linear::new(w, Some(b)),
+        })
+    }
+
+    /// The instruction's tokens [B, Lt, 384] (zero rows are padding) -> keys, values, mask.
+    fn memory(&self, language: &Tensor) -> Result<LanguageMemory> {
+        let (b, lt, _) = language.dims3()?;
+        if lt != self.index.dim(0)? {
+            return Err(PolicyError::Invalid(format!(
+                "the instruction has {lt} tokens but the language attention was built for {} \
+                 (observation.language_tokens): prepare the observation with this model's config",
+                self.index.dim(0)?
+            )));
+        }
+        let c = self.index.dim(1)?;
+        let d = c / self.heads;
+        let split =
+            |x: Tensor| -> Result<Tensor> { Ok(x.reshape((b, lt, self.heads, d))?.transpose(1, 2)?.contiguous()?) };
+        let keys = split(self.key.forward(language)?.broadcast_add(&self.index)?)?;
+        let values = split(self.value.forward(language)?)?;
+        let padding = language.abs()?.sum(2)?.eq(0f32)?.to_dtype(language.dtype())?; // [B, Lt]
+        let mask = padding.affine(-1e9, 0.0)?.reshape((b, 1, 1, lt))?;
+        Ok(LanguageMemory { keys, values, mask })
+    }
+
+    /// The action token's output [B, C] plus what it reads from the instruction.
+    fn forward(&self, memory: &LanguageMemory, last: &Tensor) -> Result<Tensor> {
+        let (b, c) = last.dims2()?;
+        let d = c / self.heads;
+        let q = self.query.forward(last)?.reshape((b, self.heads, 1, d))?;
+        let scores = q
+            .matmul(&memory.keys.transpose(2, 3)?.contiguous()?)?
+            .affine(1.0 / (d as f64).sqrt(), 0.0)?
+            .broadcast_add(&memory.mask)?;
+        let weights = candle_nn::ops::softmax_last_dim(&scores)?;
+        let read = weights.matmul(&memory.values)?.reshape((b, c))?;
+        Ok(last.add(&self.out.forward(&read)?)?)
     }
 }
 
@@ -216,6 +313,7 @@ struct Prefix {
     condition: Tensor,
     memory: Option<PointerMemory>,
     goal: Option<(Tensor, Tensor)>,
+    language: Option<LanguageMemory>,
 }
 
 /// The instruction-pointer token (`model.instruction_pointer`): one attention of the instruction
@@ -410,6 +508,8 @@ pub struct FlowRam {
     relation_rotation: Option<Mlp>,
     /// `model.point_colour`: raw mean colour of a feature pixel -> C.
     colour_mlp: Option<Mlp>,
+    /// `model.language_attention_heads`.
+    language_attention: Option<LanguageAttention>,
     time_mlp: Mlp,
     mamba: MambaStack,
     position_head: Mlp,
@@ -495,6 +595,10 @@ impl FlowRam {
                 None
             },
             colour_mlp: if config.model.point_colour { Some(Mlp::new(3, c, c, vb.pp("colour_mlp"))?) } else { None },
+            language_attention: match config.model.language_attention_heads {
+                0 => None,
+                heads => Some(LanguageAttention::new(c, heads, o.language_tokens, vb.pp("language_attention"))?),
+            },
             time_mlp: Mlp::new(c, c, c, vb.pp("time_mlp"))?,
             mamba: MambaStack::new(&mamba_config, vb.pp("mamba"))?,
             position_head: Mlp::new(c, c, 3, vb.pp("position_head"))?,
@@ -556,6 +660,12 @@ impl FlowRam {
             // The conditioned pooling's keys, query and scores, once per observation.
             once_per_observation +=
                 2.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c + c * c + o.language_tokens * c) as f64;
+        }
+        if self.language_attention.is_some() {
+            // The instruction's keys and values once; per step the query, the scores, the
+            // weighted values and the output projection.
+            once_per_observation += 4.0 * (o.language_tokens * TEXT_HIDDEN_SIZE * c) as f64;
+            heads += 4.0 * (c * c) as f64 + 4.0 * (o.language_tokens * c) as f64;
         }
         if self.position_pointer.is_some() {
             // Keys of the semantic tokens and the instruction's query once; per step the geometric
@@ -630,7 +740,8 @@ impl FlowRam {
         if let Some(mlp) = &self.instruction_mlp {
             condition = condition.add(&mlp.forward(&instruction)?)?;
         }
-        Ok(Prefix { tokens, condition, memory, goal })
+        let language = self.language_attention.as_ref().map(|a| a.memory(&inputs.language)).transpose()?;
+        Ok(Prefix { tokens, condition, memory, goal, language })
     }
 
     /// The prefix's tokens before the scan, [B, Lt + N1 (+ 1 pointer), C] (for tests and probes).
@@ -668,6 +779,20 @@ impl FlowRam {
         let tokens = Tensor::cat(&[geometric, action], 1)?;
         let condition = prefix_condition.add(&self.time_mlp.forward(&time_embedding(&inputs.t, c)?)?)?;
         Ok((tokens, condition))
+    }
+
+    /// The action token's output [B, C] plus, with `model.language_attention_heads`, what it
+    /// reads from the instruction's tokens (`language`, once per observation).
+    fn read_instruction(&self, last: &Tensor, language: Option<&LanguageMemory>) -> Result<Tensor> {
+        match (&self.language_attention, language) {
+            (None, _) => Ok(last.clone()),
+            (Some(a), Some(memory)) => a.forward(memory, last),
+            (Some(_), None) => Err(PolicyError::Invalid(
+                "the model attends to the instruction (model.language_attention_heads) but the encoded \
+                 observation carries no instruction memory: encode it with this model"
+                    .into(),
+            )),
+        }
     }
 
     /// The heads on the action token's output `last` [B, C]; with the position pointer, `pointer`
@@ -735,7 +860,7 @@ impl FlowRam {
     /// are computed once per observation and the prefix tokens repeated.
     pub fn forward(&self, prefix: &PrefixInputs, suffix: &SuffixInputs) -> Result<Velocity> {
         let features = self.image_features(&prefix.images)?;
-        let Prefix { tokens: mut p_tokens, condition: mut p_cond, mut memory, goal } =
+        let Prefix { tokens: mut p_tokens, condition: mut p_cond, mut memory, goal, mut language } =
             self.prefix_tokens(&features, prefix)?;
         let (goal_attention, mut goal) = goal.unzip();
         let (observations, samples) = (p_cond.dim(0)?, suffix.action.dim(0)?);
@@ -752,6 +877,7 @@ impl FlowRam {
             p_cond = p_cond.index_select(&owner, 0)?;
             memory = memory.map(|m| m.index_select(&owner)).transpose()?;
             goal = goal.map(|g| g.index_select(&owner, 0)).transpose()?;
+            language = language.map(|m| m.index_select(&owner)).transpose()?;
         }
         let (s_tokens, s_cond) = self.suffix_tokens(&features, &p_cond, goal.as_ref(), suffix)?;
         let (lp, ls) = (p_tokens.dim(1)?, s_tokens.dim(1)?);
@@ -759,7 +885,8 @@ impl FlowRam {
         let x = Tensor::cat(&[&p_tokens, &s_tokens], 1)?;
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
         let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        let mut velocity = self.heads(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, pointer, goal.as_ref(), 1.0, None)?;
+        let last = self.read_instruction(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, language.as_ref())?;
+        let mut velocity = self.heads(&last, pointer, goal.as_ref(), 1.0, None)?;
         velocity.goal = goal_attention;
         Ok(velocity)
     }
@@ -767,12 +894,17 @@ impl FlowRam {
     /// Inference: encodes the observation once (image features, prefix scan state).
     pub fn encode(&self, prefix: &PrefixInputs) -> Result<EncodedObservation> {
         let features = self.image_features(&prefix.images)?.detach();
-        let Prefix { tokens, condition, memory, goal } = self.prefix_tokens(&features, prefix)?;
+        let Prefix { tokens, condition, memory, goal, language } = self.prefix_tokens(&features, prefix)?;
         let state = self.mamba.forward_state(&tokens, &Conditioning::Shared(condition.clone()), None)?;
         let pointer =
             memory.map(|m| PointerMemory { keys: m.keys.detach(), xyz: m.xyz.detach(), query: m.query.detach() });
         let goal = goal.map(|(_, pointed)| pointed.detach());
-        Ok(EncodedObservation { features, state, condition, pointer, goal })
+        let language = language.map(|m| LanguageMemory {
+            keys: m.keys.detach(),
+            values: m.values.detach(),
+            mask: m.mask.detach(),
+        });
+        Ok(EncodedObservation { features, state, condition, pointer, goal, language })
     }
 
     /// Inference: one flow step from the cached prefix.
@@ -794,6 +926,7 @@ impl FlowRam {
         let (tokens, condition) =
             self.suffix_tokens(&encoded.features, &encoded.condition, encoded.goal.as_ref(), suffix)?;
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
+        let last = self.read_instruction(&last, encoded.language.as_ref())?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
         // the noisy position a_t, only where the posterior reads it

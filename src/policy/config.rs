@@ -69,10 +69,6 @@ pub struct ObservationConfig {
     pub proprio_history: usize,
 }
 
-fn is_off(n: &usize) -> bool {
-    *n == 0
-}
-
 /// The most gripper poses `observation.proprio_history` may ask for.
 pub const MAX_PROPRIO_HISTORY: usize = 8;
 
@@ -145,7 +141,7 @@ pub struct ModelConfig {
     /// (`instruction_pooling`) had to name the k-th colour of "push the red button, then ...",
     /// and the second button's approach went to the third-named button in a third of held-out
     /// three-button episodes (docs/experiments.md, session 31). Must divide `channels`.
-    #[serde(default, skip_serializing_if = "is_off")]
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub language_attention_heads: usize,
     /// Place the position relative to two pointed positions: the position pointer's p and the
     /// instruction pointer's g (needs both pointers), as p + beta * (p - g) + offset, with beta a
@@ -352,8 +348,8 @@ pub struct PointerSharpening {
     pub posterior_width: f64,
 }
 
-fn is_zero(x: &f64) -> bool {
-    *x == 0.0
+fn is_zero<T: Default + PartialEq>(x: &T) -> bool {
+    *x == T::default()
 }
 
 fn half() -> f64 {

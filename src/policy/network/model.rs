@@ -266,8 +266,7 @@ impl LanguageAttention {
             |x: Tensor| -> Result<Tensor> { Ok(x.reshape((b, lt, self.heads, d))?.transpose(1, 2)?.contiguous()?) };
         let keys = split(self.key.forward(language)?.broadcast_add(&self.index)?)?;
         let values = split(self.value.forward(language)?)?;
-        let padding = language.abs()?.sum(2)?.eq(0f32)?.to_dtype(language.dtype())?; // [B, Lt]
-        let mask = padding.affine(-1e9, 0.0)?.reshape((b, 1, 1, lt))?;
+        let mask = padding(language)?.affine(-1e9, 0.0)?.reshape((b, 1, 1, lt))?;
         Ok(LanguageMemory { keys, values, mask })
     }
 
@@ -941,10 +940,15 @@ fn attention_scores(query: &Tensor, keys: &Tensor) -> Result<Tensor> {
     Ok(query.matmul(&keys.transpose(1, 2)?.contiguous()?)?.affine(1.0 / (c as f64).sqrt(), 0.0)?)
 }
 
+/// 1 where a token [B, L, D] is padding (all zeros), else 0: [B, L, 1].
+fn padding(tokens: &Tensor) -> Result<Tensor> {
+    Ok(tokens.abs()?.sum_keepdim(2)?.eq(0f32)?.to_dtype(tokens.dtype())?)
+}
+
 /// Softmax pooling of token features [B, L, D] by learned scores, over the non-padding tokens
 /// (padding is all zeros), plus `conditioned` [B, L, 1] when given ([`PoolingQuery`]): [B, D].
 fn attention_pool(tokens: &Tensor, scores: &Linear, conditioned: Option<&Tensor>) -> Result<Tensor> {
-    let padding = tokens.abs()?.sum_keepdim(2)?.eq(0f32)?.to_dtype(tokens.dtype())?; // [B, L, 1]
+    let padding = padding(tokens)?;
     let mut logits = scores.forward(tokens)?;
     if let Some(extra) = conditioned {
         logits = logits.add(extra)?;

@@ -4,7 +4,9 @@ use std::sync::OnceLock;
 
 use flowram::data::Episode;
 use flowram::policy::PolicyError;
-use flowram::policy::config::{Consensus, InstructionPooling, PointerSharpening, PointerTarget, PolicyConfig};
+use flowram::policy::config::{
+    Consensus, InstructionPooling, LanguageReads, PointerSharpening, PointerTarget, PolicyConfig,
+};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::policy::scene::observation::Observation;
@@ -1033,6 +1035,36 @@ fn the_language_attention_starts_switched_off_reads_the_words_and_caches_like_th
     assert!(
         moved.iter().zip(&moved_other).any(|(a, b)| (a - b).abs() > 1e-4),
         "what the attention adds did not depend on the instruction's tokens: {moved:?} vs {moved_other:?}"
+    );
+
+    // `language_attention_reads = "pointer"`: only the position pointer's query reads it
+    let mut pointer = config.clone();
+    pointer.model.language_attention_reads = LanguageReads::Pointer;
+    let err = pointer.validate().unwrap_err().to_string();
+    assert!(err.contains("model.language_attention_reads") && err.contains("position_pointer"), "{err}");
+    pointer.model.position_pointer = true;
+    pointer.flow.prediction = flowram::policy::flow::Prediction::Endpoint;
+    pointer.validate().unwrap();
+    let mut no_heads = pointer.clone();
+    no_heads.model.language_attention_heads = 0;
+    let err = no_heads.validate().unwrap_err().to_string();
+    assert!(err.contains("model.language_attention_reads") && err.contains("language_attention_heads"), "{err}");
+    let json = serde_json::to_string(&pointer.model).unwrap();
+    assert!(json.contains(r#""language_attention_reads":"pointer""#), "{json}");
+    assert_eq!(serde_json::from_str::<flowram::policy::config::ModelConfig>(&json).unwrap(), pointer.model);
+    let mut token = pointer.clone();
+    token.model.language_attention_reads = LanguageReads::Token;
+    assert!(!serde_json::to_string(&token.model).unwrap().contains("language_attention_reads"));
+    no_heads.model.language_attention_reads = LanguageReads::Token;
+    let without = velocity(&no_heads, &prefix, false);
+    let pointed = velocity(&pointer, &prefix, true);
+    let everywhere = velocity(&token, &prefix, true);
+    // the rotation (velocity[3..9]) is the plain token's; the position follows the pointer's read
+    assert_eq!(pointed[3..], without[3..], "the rotation read the attention");
+    assert!(everywhere[3..].iter().zip(&without[3..]).any(|(a, b)| (a - b).abs() > 1e-4), "{everywhere:?}");
+    assert!(
+        pointed[..3].iter().zip(&without[..3]).any(|(a, b)| (a - b).abs() > 1e-5),
+        "the pointer's query did not read the attention: {pointed:?} vs {without:?}"
     );
 }
 

@@ -143,6 +143,15 @@ pub struct ModelConfig {
     /// three-button episodes (docs/experiments.md, session 31). Must divide `channels`.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub language_attention_heads: usize,
+    /// Which heads read the language attention's output (`model.language_attention_heads`):
+    /// `"token"` (every head: the position offset, rotation, gripper, relation and the position
+    /// pointer's query) or `"pointer"` (only the position pointer's query; the other heads read
+    /// the action token's output as without the attention). On five tasks the attention added
+    /// 45 / 24 stack_blocks episodes and cost 7 / 23 push_buttons ones over two training draws
+    /// (session 32); `"pointer"` confines it to choosing the target (docs/experiments.md,
+    /// session 33).
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub language_attention_reads: LanguageReads,
     /// Place the position relative to two pointed positions: the position pointer's p and the
     /// instruction pointer's g (needs both pointers), as p + beta * (p - g) + offset, with beta a
     /// linear function of the action token's output (zero at initialisation, so training starts
@@ -185,6 +194,17 @@ pub enum InstructionPooling {
     /// `Attention` plus a zero-initialised query from the condition against keys of each
     /// token's features and its index in the instruction: a new model starts as `Attention`.
     Conditioned,
+}
+
+/// Which heads read the language attention's output (`model.language_attention_reads`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum LanguageReads {
+    /// Every head reads the action token's output with what it read from the instruction.
+    #[default]
+    Token,
+    /// Only the position pointer's query does.
+    Pointer,
 }
 
 /// Conditional flow matching.
@@ -562,6 +582,21 @@ impl PolicyConfig {
                 "model.language_attention_heads",
                 &format!("0 (off) or a divisor of model.channels ({})", self.model.channels),
                 heads.to_string(),
+            );
+        }
+        if heads == 0 && self.model.language_attention_reads != LanguageReads::Token {
+            return bad(
+                "model.language_attention_reads",
+                "\"token\" (the default) unless model.language_attention_heads is set: without the \
+                 attention there is nothing for the pointer to read",
+                "\"pointer\"".to_string(),
+            );
+        }
+        if self.model.language_attention_reads == LanguageReads::Pointer && !self.model.position_pointer {
+            return bad(
+                "model.language_attention_reads",
+                "\"token\" unless model.position_pointer is on (\"pointer\" feeds only its query)",
+                "\"pointer\"".to_string(),
             );
         }
         if !(1..=MAX_PROPRIO_HISTORY).contains(&o.proprio_history) {

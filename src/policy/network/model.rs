@@ -48,7 +48,7 @@
 use candle_core::{Device, Tensor};
 use candle_nn::{Linear, Module, VarBuilder};
 
-use crate::policy::config::{InstructionPooling, MAX_KEYFRAME_INDEX, PolicyConfig};
+use crate::policy::config::{InstructionPooling, LanguageReads, MAX_KEYFRAME_INDEX, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::network::encoding::{positional_encoding, time_embedding};
 use crate::policy::network::image_encoder::{ImageEncoder, ImageEncoderConfig};
@@ -283,6 +283,14 @@ impl LanguageAttention {
         let read = weights.matmul(&memory.values)?.reshape((b, c))?;
         Ok(last.add(&self.out.forward(&read)?)?)
     }
+}
+
+/// What the heads read from the action token ([`FlowRam::read_instruction`]).
+struct Readout {
+    /// [B, C], read by the position offset, rotation, gripper and relation heads.
+    token: Tensor,
+    /// [B, C], read by the position pointer's query.
+    query: Tensor,
 }
 
 /// Network output for one flow step.
@@ -780,12 +788,20 @@ impl FlowRam {
         Ok((tokens, condition))
     }
 
-    /// The action token's output [B, C] plus, with `model.language_attention_heads`, what it
-    /// reads from the instruction's tokens (`language`, once per observation).
-    fn read_instruction(&self, last: &Tensor, language: Option<&LanguageMemory>) -> Result<Tensor> {
+    /// What the heads read: the action token's output `last` [B, C] and, for the position
+    /// pointer's query, that output plus what it reads from the instruction's tokens
+    /// (`language`, once per observation) with `model.language_attention_heads`; with
+    /// `model.language_attention_reads = "token"` every head reads the latter.
+    fn read_instruction(&self, last: &Tensor, language: Option<&LanguageMemory>) -> Result<Readout> {
         match (&self.language_attention, language) {
-            (None, _) => Ok(last.clone()),
-            (Some(a), Some(memory)) => a.forward(memory, last),
+            (None, _) => Ok(Readout { token: last.clone(), query: last.clone() }),
+            (Some(a), Some(memory)) => {
+                let read = a.forward(memory, last)?;
+                Ok(match self.config.model.language_attention_reads {
+                    LanguageReads::Token => Readout { token: read.clone(), query: read },
+                    LanguageReads::Pointer => Readout { token: last.clone(), query: read },
+                })
+            }
             (Some(_), None) => Err(PolicyError::Invalid(
                 "the model attends to the instruction (model.language_attention_heads) but the encoded \
                  observation carries no instruction memory: encode it with this model"
@@ -794,18 +810,19 @@ impl FlowRam {
         }
     }
 
-    /// The heads on the action token's output `last` [B, C]; with the position pointer, `pointer`
+    /// The heads on the action token's output (`readout`, [B, C] each); with the position pointer, `pointer`
     /// holds its memory and the suffix's geometric tokens [B, N2, C] and positions [B, N2, 3];
     /// `goal` [B, 3] is the instruction pointer's pointed position (`model.relational_pointer`);
     /// `pointer_temperature` divides the position pointer's scores (1: as trained).
     fn heads(
         &self,
-        last: &Tensor,
+        readout: &Readout,
         pointer: Option<(&PointerMemory, &Tensor, &Tensor)>,
         goal: Option<&Tensor>,
         pointer_temperature: f64,
         posterior: Option<(&Tensor, PosteriorAt)>,
     ) -> Result<Velocity> {
+        let last = &readout.token;
         let mut position = self.position_head.forward(last)?;
         let mut attention = None;
         let mut relation_used = None;
@@ -814,7 +831,7 @@ impl FlowRam {
             (Some(p), Some((memory, geometric, xyz))) => {
                 let posterior = posterior.map(|(a_t, at)| Posterior { position: a_t, offset: &position, at });
                 let (pointed, log_weights, candidates) =
-                    p.point(memory, geometric, xyz, last, pointer_temperature, posterior)?;
+                    p.point(memory, geometric, xyz, &readout.query, pointer_temperature, posterior)?;
                 position = position.add(&pointed)?;
                 if let Some(relation) = &self.relation {
                     let goal = goal.ok_or_else(|| {
@@ -884,8 +901,8 @@ impl FlowRam {
         let x = Tensor::cat(&[&p_tokens, &s_tokens], 1)?;
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
         let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        let last = self.read_instruction(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, language.as_ref())?;
-        let mut velocity = self.heads(&last, pointer, goal.as_ref(), 1.0, None)?;
+        let readout = self.read_instruction(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, language.as_ref())?;
+        let mut velocity = self.heads(&readout, pointer, goal.as_ref(), 1.0, None)?;
         velocity.goal = goal_attention;
         Ok(velocity)
     }
@@ -925,12 +942,12 @@ impl FlowRam {
         let (tokens, condition) =
             self.suffix_tokens(&encoded.features, &encoded.condition, encoded.goal.as_ref(), suffix)?;
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
-        let last = self.read_instruction(&last, encoded.language.as_ref())?;
+        let readout = self.read_instruction(&last, encoded.language.as_ref())?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
         // the noisy position a_t, only where the posterior reads it
         let position = posterior_at.map(|_| suffix.action.narrow(1, 0, 3)).transpose()?;
-        self.heads(&last, pointer, encoded.goal.as_ref(), pointer_temperature, position.as_ref().zip(posterior_at))
+        self.heads(&readout, pointer, encoded.goal.as_ref(), pointer_temperature, position.as_ref().zip(posterior_at))
     }
 }
 

@@ -1040,11 +1040,12 @@ fn the_language_attention_starts_switched_off_reads_the_words_and_caches_like_th
     // `language_attention_reads = "pointer"`: only the position pointer's query reads it
     let mut pointer = config.clone();
     pointer.model.language_attention_reads = LanguageReads::Pointer;
-    let err = pointer.validate().unwrap_err().to_string();
-    assert!(err.contains("model.language_attention_reads") && err.contains("position_pointer"), "{err}");
-    pointer.model.position_pointer = true;
-    pointer.flow.prediction = flowram::policy::flow::Prediction::Endpoint;
+    assert!(pointer.model.position_pointer, "the CPU default has the position pointer");
     pointer.validate().unwrap();
+    let mut no_pointer = pointer.clone();
+    no_pointer.model.position_pointer = false;
+    let err = no_pointer.validate().unwrap_err().to_string();
+    assert!(err.contains("model.language_attention_reads") && err.contains("position_pointer"), "{err}");
     let mut no_heads = pointer.clone();
     no_heads.model.language_attention_heads = 0;
     let err = no_heads.validate().unwrap_err().to_string();

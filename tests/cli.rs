@@ -295,6 +295,16 @@ fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
         }
     }
     assert!(rt["deadline_misses"].as_u64().is_some() && rt["policy_inferences"] == 0);
+    assert!(rt["one_core"].is_null(), "{rt}");
+    let out = common::flowram()
+        .args(["bench", "realtime", "--ticks", "1500", "--no-rt", "--one-core", "--json"])
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let rt: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let last = std::thread::available_parallelism().unwrap().get() as u64 - 1;
+    assert_eq!(rt["one_core"], last, "the process runs on the control thread's core: {rt}");
+    assert_eq!((rt["ticks"].as_u64(), rt["allocations_in_tick"].as_u64()), (Some(1500), Some(0)), "{rt}");
 
     let out = common::flowram().args(["bench", "faults", "--runs", "2", "--json"]).output().unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));

@@ -302,3 +302,33 @@ fn a_panicking_policy_ends_the_run_instead_of_hanging_it() {
     assert!(outcome.is_err(), "the policy's panic must reach the caller");
     assert!(started.elapsed() < Duration::from_secs(60), "the run went on after the policy died");
 }
+
+/// The cores a thread may run on.
+fn allowed_cores(tid: libc::pid_t) -> Vec<usize> {
+    // SAFETY: a zeroed set is valid; the call fills it.
+    unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        assert_eq!(libc::sched_getaffinity(tid, std::mem::size_of::<libc::cpu_set_t>(), &raw mut set), 0);
+        (0..libc::CPU_SETSIZE as usize).filter(|&c| libc::CPU_ISSET(c, &set)).collect()
+    }
+}
+
+#[test]
+fn one_core_confines_the_threads_started_after_it_to_the_control_core() {
+    use flowram::runtime::pacing::{control_core, share_one_core};
+    let harness = allowed_cores(0);
+    // on a thread of its own: affinity is per thread, and the harness's threads stay as they are
+    std::thread::spawn(|| {
+        let before = allowed_cores(0);
+        let core = control_core();
+        assert_eq!(Some(&core), before.last(), "the control core is the last the process may use");
+        assert_eq!(share_one_core().unwrap(), core);
+        // a thread started afterwards (a pool worker, the planner) inherits the one core
+        let child = std::thread::spawn(|| (allowed_cores(0), control_core())).join().unwrap();
+        assert_eq!(child, (vec![core], core));
+        assert_eq!(allowed_cores(0), vec![core]);
+    })
+    .join()
+    .unwrap();
+    assert_eq!(allowed_cores(0), harness, "only the confined thread and its children moved");
+}

@@ -19,7 +19,7 @@ use flowram::rollout::stack::{load_controller_config, realtime_stack};
 use flowram::runtime::alloc_count;
 use flowram::runtime::control::{ControlSettings, Pacing};
 use flowram::runtime::messages::{Answer, Request};
-use flowram::runtime::pacing::make_current_thread_background;
+use flowram::runtime::pacing::{make_current_thread_background, share_one_core};
 use flowram::runtime::planner::WorkspaceBox;
 use flowram::runtime::session::{KeyframeSource, Percentiles, SessionSettings, run_session};
 use flowram::sim::{Visuals, World};
@@ -41,6 +41,10 @@ pub struct RealtimeBenchArgs {
     /// Do not ask for SCHED_FIFO, mlockall and a pinned core.
     #[arg(long)]
     no_rt: bool,
+    /// Run the whole process on the control thread's core: the policy computes only while the
+    /// tick sleeps (a shorter compute tail on 2-core VMs, a slower policy; see the README).
+    #[arg(long)]
+    one_core: bool,
     /// Controller profile [default: controllers/osc.toml].
     #[arg(long)]
     controller: Option<PathBuf>,
@@ -62,6 +66,8 @@ struct RealtimeReport {
     allocations_in_tick: Option<u64>,
     rt_scheduling: bool,
     rt_notes: Vec<String>,
+    /// `--one-core`: the core the whole process ran on.
+    one_core: Option<usize>,
     keyframes_done: u64,
     limit_violations: u64,
     qp_fallbacks: u64,
@@ -123,6 +129,12 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
         bail!("--ticks must be at least 1");
     }
     let rt = !args.no_rt;
+    // before any thread starts, so the policy's pool is sized for and confined to that core
+    let one_core = args
+        .one_core
+        .then(share_one_core)
+        .transpose()
+        .context("--one-core: confining the process to the control thread's core")?;
     if rt {
         // The policy's pool threads run at background priority: started before first use.
         let _ = rayon::ThreadPoolBuilder::new().start_handler(|_| make_current_thread_background()).build_global();
@@ -186,6 +198,7 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
         allocations_in_tick: counting.then(|| alloc_count::tick_allocations() - allocations_before),
         rt_scheduling: out.rt.as_ref().is_some_and(|r| r.fifo),
         rt_notes: out.rt.map(|r| r.notes).unwrap_or_default(),
+        one_core,
         keyframes_done: s.keyframes_done,
         limit_violations: s.monitor.violations,
         qp_fallbacks: s.qp_fallbacks,
@@ -211,9 +224,10 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
         println!("MuJoCo step us: p50 {:.1}, p99 {:.1}, p99.99 {:.1}, max {:.1}", m.p50, m.p99, m.p9999, m.max);
         println!("wake latency us: p50 {:.1}, p99 {:.1}, p99.99 {:.1}, max {:.1}", w.p50, w.p99, w.p9999, w.max);
         println!(
-            "allocations in ticks: {}; SCHED_FIFO: {}; limit violations {}, QP fallbacks {}",
+            "allocations in ticks: {}; SCHED_FIFO: {}; whole process on one core: {}; limit violations {}, QP fallbacks {}",
             report.allocations_in_tick.map_or("not counted".into(), |n| n.to_string()),
             report.rt_scheduling,
+            report.one_core.map_or("no".into(), |c| format!("core {c}")),
             report.limit_violations,
             report.qp_fallbacks
         );

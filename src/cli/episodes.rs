@@ -58,6 +58,10 @@ pub struct RunArgs {
     /// With --realtime: do not ask for SCHED_FIFO, mlockall and a pinned core.
     #[arg(long, requires = "realtime")]
     no_rt: bool,
+    /// With --realtime: run the whole process on the control thread's core (the policy computes
+    /// only while the tick sleeps; a shorter tick tail on 2-core machines, a slower policy).
+    #[arg(long, requires = "realtime", conflicts_with = "latency_ms")]
+    one_core: bool,
     #[arg(long)]
     json: bool,
 }
@@ -100,6 +104,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
         _ if args.realtime => {
             anyhow::ensure!(args.video.is_none(), "--video records in lock-step only; drop it or --realtime");
             anyhow::ensure!(args.policy != ActorKind::Idle, "--realtime runs --policy expert or flowram");
+            if args.one_core {
+                // before the policy loads, so its thread pool starts confined to that core
+                flowram::runtime::pacing::share_one_core()
+                    .context("--one-core: confining the process to the control thread's core")?;
+            }
             let mut loaded = if args.policy == ActorKind::Flowram {
                 Some(args.learned.load_actor(&[args.task.as_str()])?)
             } else {

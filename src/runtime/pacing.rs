@@ -90,8 +90,7 @@ pub fn make_current_thread_realtime() -> RtSettings {
             std::io::Error::from_raw_os_error(rc)
         ));
     }
-    let cores = std::thread::available_parallelism().map_or(1, std::num::NonZero::get);
-    let core = cores - 1;
+    let core = control_core();
     // SAFETY: the set is zeroed and filled with one valid CPU index before use.
     let pinned = unsafe {
         let mut set: libc::cpu_set_t = std::mem::zeroed();
@@ -102,6 +101,36 @@ pub fn make_current_thread_realtime() -> RtSettings {
         notes.push(format!("pinning to core {core} refused ({})", std::io::Error::last_os_error()));
     }
     RtSettings { memory_locked, fifo, pinned_core: pinned.then_some(core), notes }
+}
+
+/// The core the control thread pins itself to: the last of those the process may run on (the
+/// last core unless the process was started confined, e.g. by `taskset` or [`share_one_core`]).
+pub fn control_core() -> usize {
+    // SAFETY: a zeroed set is valid; the call fills it for the calling thread.
+    let allowed = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        (libc::sched_getaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &raw mut set) == 0)
+            .then(|| (0..libc::CPU_SETSIZE as usize).rev().find(|&c| libc::CPU_ISSET(c, &set)))
+    };
+    allowed.flatten().unwrap_or_else(|| std::thread::available_parallelism().map_or(1, std::num::NonZero::get) - 1)
+}
+
+/// `--one-core`: confines the calling thread, and so every thread started after it (the
+/// policy's pool, the planner, the logger), to [`control_core`], so the policy computes only
+/// while the control thread (SCHED_FIFO) sleeps and no other core runs anything of the process
+/// during a tick. Call it before any thread starts. On the 2-core VMs of sessions 26-32 the
+/// tick's compute p99 fell from 41-58 us to 38-39 us at 10^5 ticks with the policy inferring,
+/// and the policy ran 1.5x slower (`docs/results/realtime-s32/`; session 33 at 10^6 in the README).
+/// Returns the core.
+pub fn share_one_core() -> std::io::Result<usize> {
+    let core = control_core();
+    // SAFETY: the set is zeroed and holds one valid CPU index before use.
+    let ok = unsafe {
+        let mut set: libc::cpu_set_t = std::mem::zeroed();
+        libc::CPU_SET(core, &mut set);
+        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &raw const set) == 0
+    };
+    if ok { Ok(core) } else { Err(std::io::Error::last_os_error()) }
 }
 
 /// Undoes the memory lock (the other settings end with the thread).

@@ -148,8 +148,9 @@ pub struct ModelConfig {
     /// pointer's query) or `"pointer"` (only the position pointer's query; the other heads read
     /// the action token's output as without the attention). On five tasks the attention added
     /// 45 / 24 stack_blocks episodes and cost 7 / 23 push_buttons ones over two training draws
-    /// (session 32); `"pointer"` confines it to choosing the target (docs/experiments.md,
-    /// session 33).
+    /// (session 32). `"pointer"` (arm LP5, session 33, the shipped five-task recipe): 103 / 72
+    /// over two draws against the recipe without the attention, mostly slide_block and
+    /// close_jar; push_buttons still 12 / 18 (docs/experiments.md).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub language_attention_reads: LanguageReads,
     /// Place the position relative to two pointed positions: the position pointer's p and the

@@ -120,8 +120,9 @@ pub fn control_core() -> usize {
 /// while the control thread (SCHED_FIFO) sleeps and no other core runs anything of the process
 /// during a tick. Call it before any thread starts. On the 2-core VMs of sessions 26-32 the
 /// tick's compute p99 fell from 41-58 us to 38-39 us at 10^5 ticks with the policy inferring,
-/// and the policy ran 1.5x slower (`docs/results/realtime-s32/`; session 33 at 10^6 in the README).
-/// Returns the core.
+/// and the policy ran 1.5x slower (`docs/results/realtime-s32/`). At 10^6 ticks (session 33,
+/// one run each) p99 48.5 against 53.0 us, but 311 deadline misses against 115: an option, not
+/// the default (README, "bench realtime"). Returns the core.
 pub fn share_one_core() -> std::io::Result<usize> {
     let core = control_core();
     // SAFETY: the set is zeroed and holds one valid CPU index before use.

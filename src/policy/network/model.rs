@@ -810,8 +810,9 @@ impl FlowRam {
         }
     }
 
-    /// The heads on the action token's output (`readout`, [B, C] each); with the position pointer, `pointer`
-    /// holds its memory and the suffix's geometric tokens [B, N2, C] and positions [B, N2, 3];
+    /// The heads on the action token's output (`readout`, [B, C] each); with the position
+    /// pointer, `pointer` holds its memory and the suffix's geometric tokens [B, N2, C] and
+    /// positions [B, N2, 3];
     /// `goal` [B, 3] is the instruction pointer's pointed position (`model.relational_pointer`);
     /// `pointer_temperature` divides the position pointer's scores (1: as trained).
     fn heads(

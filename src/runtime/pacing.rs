@@ -91,12 +91,7 @@ pub fn make_current_thread_realtime() -> RtSettings {
         ));
     }
     let core = control_core();
-    // SAFETY: the set is zeroed and filled with one valid CPU index before use.
-    let pinned = unsafe {
-        let mut set: libc::cpu_set_t = std::mem::zeroed();
-        libc::CPU_SET(core, &mut set);
-        libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &raw const set) == 0
-    };
+    let pinned = pin_current_thread(core);
     if !pinned {
         notes.push(format!("pinning to core {core} refused ({})", std::io::Error::last_os_error()));
     }
@@ -125,13 +120,18 @@ pub fn control_core() -> usize {
 /// the default (README, "bench realtime"). Returns the core.
 pub fn share_one_core() -> std::io::Result<usize> {
     let core = control_core();
-    // SAFETY: the set is zeroed and holds one valid CPU index before use.
-    let ok = unsafe {
+    if pin_current_thread(core) { Ok(core) } else { Err(std::io::Error::last_os_error()) }
+}
+
+/// Restricts the calling thread (and the threads it starts afterwards) to `core`; false (with
+/// `errno` set) where refused.
+fn pin_current_thread(core: usize) -> bool {
+    // SAFETY: the set is zeroed and filled with one valid CPU index before use.
+    unsafe {
         let mut set: libc::cpu_set_t = std::mem::zeroed();
         libc::CPU_SET(core, &mut set);
         libc::sched_setaffinity(0, std::mem::size_of::<libc::cpu_set_t>(), &raw const set) == 0
-    };
-    if ok { Ok(core) } else { Err(std::io::Error::last_os_error()) }
+    }
 }
 
 /// Undoes the memory lock (the other settings end with the thread).

@@ -666,11 +666,11 @@ fn configs_written_before_the_conditioning_options_load_with_the_papers_choices(
     assert_eq!(config.flow.goal_target, flowram::policy::config::GoalTarget::Keyframe);
     assert_eq!(config.flow.goal_keyframe, flowram::policy::config::GoalKeyframe::Last);
     // a command line's --pointer-temperature replaces the temperature only, and only when given
-    let set = PointerSharpening { temperature: 0.5, until: 0.3, posterior: false, posterior_width: 0.0 };
+    let set = PointerSharpening { temperature: 0.5, until: 0.3, ..PointerSharpening::OFF };
     assert_eq!(set.with_temperature(None), set);
     assert_eq!(
         set.with_temperature(Some(0.1)),
-        PointerSharpening { temperature: 0.1, until: 0.3, posterior: false, posterior_width: 0.0 }
+        PointerSharpening { temperature: 0.1, until: 0.3, ..PointerSharpening::OFF }
     );
     config.validate().unwrap();
     // The consensus rule is one of two names; another is refused with the field and the choices.
@@ -1159,36 +1159,83 @@ fn the_pointer_sharpening_changes_only_the_steps_before_its_flow_time() {
     };
     let trained = predict(PointerSharpening::OFF);
     // No step before flow time 0; a temperature of 1 divides nothing.
-    assert_eq!(
-        predict(PointerSharpening { temperature: 0.05, until: 0.0, posterior: false, posterior_width: 0.0 }),
-        trained
-    );
-    assert_eq!(
-        predict(PointerSharpening { temperature: 1.0, until: 1.0, posterior: false, posterior_width: 0.0 }),
-        trained
-    );
-    let half = predict(PointerSharpening { temperature: 0.05, until: 0.5, posterior: false, posterior_width: 0.0 });
+    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.0, ..PointerSharpening::OFF }), trained);
+    assert_eq!(predict(PointerSharpening { temperature: 1.0, until: 1.0, ..PointerSharpening::OFF }), trained);
+    let half = predict(PointerSharpening { temperature: 0.05, until: 0.5, ..PointerSharpening::OFF });
     assert_ne!(half, trained);
     // 4 steps at t = 0, 0.25, 0.5, 0.75: until 0.3 sharpens the same two steps as 0.5, 0.51 and
     // 1.0 sharpen more (t < until, strictly).
-    assert_eq!(
-        predict(PointerSharpening { temperature: 0.05, until: 0.3, posterior: false, posterior_width: 0.0 }),
-        half
-    );
-    assert_ne!(
-        predict(PointerSharpening { temperature: 0.05, until: 0.51, posterior: false, posterior_width: 0.0 }),
-        half
-    );
-    assert_ne!(
-        predict(PointerSharpening { temperature: 0.05, until: 1.0, posterior: false, posterior_width: 0.0 }),
-        half
-    );
+    assert_eq!(predict(PointerSharpening { temperature: 0.05, until: 0.3, ..PointerSharpening::OFF }), half);
+    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 0.51, ..PointerSharpening::OFF }), half);
+    assert_ne!(predict(PointerSharpening { temperature: 0.05, until: 1.0, ..PointerSharpening::OFF }), half);
     // The config refuses a temperature that is not positive and a flow time outside [0, 1].
     let mut bad = config.clone();
     bad.flow.pointer_sharpening.temperature = 0.0;
     let message = bad.validate().unwrap_err().to_string();
     assert!(message.contains("flow.pointer_sharpening.temperature"), "{message}");
-    bad.flow.pointer_sharpening =
-        PointerSharpening { temperature: 0.1, until: 1.5, posterior: false, posterior_width: 0.0 };
+    bad.flow.pointer_sharpening = PointerSharpening { temperature: 0.1, until: 1.5, ..PointerSharpening::OFF };
     assert!(bad.validate().unwrap_err().to_string().contains("flow.pointer_sharpening.until"));
+}
+
+#[test]
+fn the_instructions_guidance_is_as_trained_at_1_the_null_pointer_at_0_and_is_validated() {
+    let (config, mut policy, observation) = fresh_pointer_policy();
+    let mut explain = |observation: &Observation, steps: usize, guidance: f64| {
+        let sharpening = PointerSharpening { guidance, ..PointerSharpening::OFF };
+        let options = SamplingOptions { sharpening, ..SamplingOptions::new(steps, 2, 3) };
+        policy.predict_explained(observation, &options).unwrap()
+    };
+    let trained = explain(&observation, 4, 1.0);
+    // Above 1 the pointer's scores move away from the null instruction's, so the samples move.
+    let guided = explain(&observation, 4, 3.0);
+    assert_ne!(guided.poses, trained.poses);
+    assert_ne!(guided.pointers, trained.pointers);
+    // At 0 the pointer is the null instruction's: at the first Euler step (t = 0, the same
+    // noise and geometric tokens) it points exactly where the empty instruction's does.
+    let mut empty = observation.clone();
+    empty.instruction = flowram::policy::inputs::NULL_INSTRUCTION.to_string();
+    assert_ne!(empty.instruction, observation.instruction);
+    let null = explain(&empty, 1, 1.0);
+    let unconditional = explain(&observation, 1, 0.0);
+    let pointed = |s: &flowram::policy::inference::Samples| s.pointers.iter().map(|p| p.pointed).collect::<Vec<_>>();
+    assert_eq!(pointed(&unconditional), pointed(&null));
+    assert_ne!(pointed(&explain(&observation, 1, 1.0)), pointed(&null), "the instruction does not move the pointer");
+    // Written only when not 1, read back as written; a command line's value replaces it.
+    assert!(!serde_json::to_string(&config.flow.pointer_sharpening).unwrap().contains("guidance"));
+    let set = PointerSharpening { guidance: 2.0, ..PointerSharpening::OFF };
+    let json = serde_json::to_string(&set).unwrap();
+    assert_eq!(serde_json::from_str::<PointerSharpening>(&json).unwrap(), set);
+    assert_eq!(PointerSharpening::OFF.with_guidance(Some(2.0)), set);
+    assert_eq!(set.with_guidance(None), set);
+    // Refused: a negative or non-finite weight.
+    let mut bad = config.clone();
+    for guidance in [-0.5, f64::NAN, f64::INFINITY] {
+        bad.flow.pointer_sharpening = PointerSharpening { guidance, ..PointerSharpening::OFF };
+        let message = bad.validate().unwrap_err().to_string();
+        assert!(message.contains("flow.pointer_sharpening.guidance"), "{message}");
+    }
+}
+
+#[test]
+fn instruction_dropout_trains_on_the_null_instruction_from_its_own_stream_and_is_validated() {
+    let config = tiny_config();
+    let mut dropped = config.clone();
+    dropped.flow.instruction_dropout = 0.5;
+    dropped.validate().unwrap();
+    // Not serialised when 0: configs written before the option are unchanged.
+    assert!(serde_json::to_value(&config).unwrap()["flow"].get("instruction_dropout").is_none());
+    assert_eq!(serde_json::to_value(&dropped).unwrap()["flow"]["instruction_dropout"], 0.5);
+    // Half of a batch of 16 loses its instruction: a different loss from the same draws, and the
+    // same loss again from the same seed (the dropout has its own random stream).
+    let (plain, once, again) = (first_step(&config), first_step(&dropped), first_step(&dropped));
+    assert!(once.total.is_finite(), "{once:?}");
+    assert_ne!(plain, once);
+    assert_eq!(once, again);
+    // Refused: a probability outside [0, 1).
+    for p in [-0.1, 1.0, f64::NAN] {
+        let mut bad = config.clone();
+        bad.flow.instruction_dropout = p;
+        let message = bad.validate().unwrap_err().to_string();
+        assert!(message.contains("flow.instruction_dropout"), "{message}");
+    }
 }

@@ -26,6 +26,12 @@ pub struct SharpeningArgs {
     /// posterior on); default: the checkpoint's.
     #[arg(long, value_parser = super::non_negative_number)]
     pub pointer_posterior_width: Option<f64>,
+    /// The instruction's classifier-free guidance of the position pointer, w: its scores are
+    /// s_null + w (s - s_null) against the null instruction's
+    /// (`flow.pointer_sharpening.guidance`; 1: as trained; for checkpoints trained with
+    /// flow.instruction_dropout); default: the checkpoint's.
+    #[arg(long, value_parser = super::non_negative_number)]
+    pub pointer_guidance: Option<f64>,
 }
 
 impl SharpeningArgs {
@@ -35,6 +41,7 @@ impl SharpeningArgs {
             .with_temperature(self.pointer_temperature)
             .with_posterior(self.pointer_posterior)
             .with_posterior_width(self.pointer_posterior_width)
+            .with_guidance(self.pointer_guidance)
     }
 }
 

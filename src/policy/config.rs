@@ -296,6 +296,14 @@ pub struct FlowConfig {
     /// [`stage_end`]: crate::policy::scene::observation::stage_end
     #[serde(default, skip_serializing_if = "GoalKeyframe::is_last")]
     pub goal_keyframe: GoalKeyframe,
+    /// Training only: the probability that a sample's instruction is replaced by the null
+    /// instruction (the empty one, [`crate::policy::inputs::NULL_INSTRUCTION`]: its token
+    /// features, sentence embedding and everything read from them), so the model also learns
+    /// the unconditional keyframe distribution that `flow.pointer_sharpening.guidance` contrasts
+    /// with (classifier-free guidance: DiT, pi0's and Octo's language dropout). Its own random
+    /// stream, so the other draws of a step are unchanged. 0 (the paper): never.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub instruction_dropout: f64,
 }
 
 /// `flow.goal_keyframe`: which keyframe the instruction pointer's loss points at.
@@ -367,6 +375,24 @@ pub struct PointerSharpening {
     /// candidates are points (as shipped in session 30).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub posterior_width: f64,
+    /// Classifier-free guidance of the pointer by the instruction, w: at every Euler step the
+    /// scores are s_null + w (s - s_null), s_null the scores of the same step run with the null
+    /// instruction (the empty one, [`crate::policy::inputs::NULL_INSTRUCTION`]), before the
+    /// posterior's likelihood is added. 1: as trained (no second pass); above 1: the candidates
+    /// the instruction favours over no instruction gain log-odds (the named colour's button over
+    /// the others'); 0: the unconditional pointer. Meant for checkpoints trained with
+    /// `flow.instruction_dropout`, which know the null instruction. Inference only; costs a
+    /// second encoding and a second scan per Euler step.
+    #[serde(default = "one_f64", skip_serializing_if = "is_one")]
+    pub guidance: f64,
+}
+
+fn one_f64() -> f64 {
+    1.0
+}
+
+fn is_one(x: &f64) -> bool {
+    *x == 1.0
 }
 
 fn is_zero<T: Default + PartialEq>(x: &T) -> bool {
@@ -385,7 +411,7 @@ impl Default for PointerSharpening {
 
 impl PointerSharpening {
     /// As trained at every step.
-    pub const OFF: Self = Self { temperature: 1.0, until: 0.5, posterior: false, posterior_width: 0.0 };
+    pub const OFF: Self = Self { temperature: 1.0, until: 0.5, posterior: false, posterior_width: 0.0, guidance: 1.0 };
 
     /// This sharpening with its temperature replaced where one is given (a command line's
     /// `--pointer-temperature` over the checkpoint's setting).
@@ -407,9 +433,20 @@ impl PointerSharpening {
         }
     }
 
+    /// This sharpening with the instruction's guidance replaced where one is given (a command
+    /// line's `--pointer-guidance`).
+    pub fn with_guidance(self, guidance: Option<f64>) -> Self {
+        Self { guidance: guidance.unwrap_or(self.guidance), ..self }
+    }
+
+    /// Whether sampling runs the null instruction's second pass (`guidance` other than 1).
+    pub fn guided(&self) -> bool {
+        self.guidance != 1.0
+    }
+
     /// Errors: [`PolicyError::Invalid`] naming the field unless the temperature is positive, the
-    /// flow time `until` in [0, 1] and the posterior's width finite and at least 0 (0 without the
-    /// posterior).
+    /// flow time `until` in [0, 1], the posterior's width finite and at least 0 (0 without the
+    /// posterior) and the guidance finite and at least 0.
     pub fn validate(&self) -> Result<()> {
         let bad = |field: &str, expected: &str, got: String| {
             Err(PolicyError::Invalid(format!("flow.pointer_sharpening.{field} must be {expected}; got {got}")))
@@ -422,6 +459,9 @@ impl PointerSharpening {
         }
         if !(self.posterior_width.is_finite() && self.posterior_width >= 0.0) {
             return bad("posterior_width", "a width in metres, at least 0 (0: off)", self.posterior_width.to_string());
+        }
+        if !(self.guidance.is_finite() && self.guidance >= 0.0) {
+            return bad("guidance", "a finite weight, at least 0 (1: off, as trained)", self.guidance.to_string());
         }
         if self.posterior_width > 0.0 && !self.posterior {
             return bad(
@@ -570,6 +610,10 @@ impl PolicyConfig {
             }
         }
         self.flow.pointer_sharpening.validate().map_err(|e| PolicyError::Invalid(format!("policy config: {e}")))?;
+        let dropout = self.flow.instruction_dropout;
+        if !(0.0..1.0).contains(&dropout) {
+            return bad("flow.instruction_dropout", "a probability in [0, 1) (0: off)", dropout.to_string());
+        }
         if !self.model.channels.is_multiple_of(6) {
             return bad(
                 "model.channels",

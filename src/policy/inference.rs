@@ -16,7 +16,9 @@ use crate::policy::checkpoint::weights::load_model_weights;
 use crate::policy::config::{Consensus, PointerSharpening, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{euler_sample, sample_source_noise};
-use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, prepare, suffix_inputs};
+use crate::policy::inputs::{
+    Augmentation, InstructionInputs, PreparedObservation, prefix_inputs, prepare, suffix_inputs,
+};
 use crate::policy::network::model::{EncodedObservation, FlowRam, PosteriorAt, device};
 use crate::policy::network::text_encoder::TextEncoder;
 use crate::policy::runtime::in_pool;
@@ -96,12 +98,14 @@ pub struct Policy {
     pub text: TextEncoder,
     /// Where the weights came from (None: random initialisation).
     pub checkpoint: Option<PathBuf>,
+    /// The null instruction's features (`flow.pointer_sharpening.guidance`).
+    null: InstructionInputs,
 }
 
 impl Policy {
     /// Loads a checkpoint: a run folder (its latest checkpoint) or a checkpoint folder. Uses the
     /// EMA weights.
-    pub fn load(path: &Path, text: TextEncoder) -> Result<Self> {
+    pub fn load(path: &Path, mut text: TextEncoder) -> Result<Self> {
         if !path.is_dir() {
             return Err(PolicyError::File {
                 path: path.into(),
@@ -124,17 +128,19 @@ impl Policy {
         let varmap = VarMap::new();
         let model = FlowRam::new(&config, VarBuilder::from_varmap(&varmap, DType::F32, &device()))?;
         load_model_weights(&dir.join(EMA_FILE), &varmap)?;
-        Ok(Self { model, text, checkpoint: Some(dir) })
+        let null = InstructionInputs::null(&config, &mut text)?;
+        Ok(Self { model, text, checkpoint: Some(dir), null })
     }
 
     /// A randomly initialised model (benchmarks).
-    pub fn random(config: &PolicyConfig, text: TextEncoder) -> Result<Self> {
+    pub fn random(config: &PolicyConfig, mut text: TextEncoder) -> Result<Self> {
         let varmap = VarMap::new();
         let model = FlowRam::new(
             config,
             crate::policy::network::init::seeded_var_builder(&varmap, config.train.seed, &device()),
         )?;
-        Ok(Self { model, text, checkpoint: None })
+        let null = InstructionInputs::null(config, &mut text)?;
+        Ok(Self { model, text, checkpoint: None, null })
     }
 
     pub fn config(&self) -> &PolicyConfig {
@@ -193,6 +199,13 @@ impl Policy {
         options.sharpening.validate()?;
         let s = options.samples;
         let encoded = encoded.repeat(s)?;
+        // classifier-free guidance: the same observation with the null instruction
+        let guidance = options.sharpening.guidance;
+        let null = if options.sharpening.guided() {
+            Some(self.encode(&prepared.with_instruction(&self.null))?.repeat(s)?)
+        } else {
+            None
+        };
         let schedule = options.schedule(config.radius_schedule);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
         let a0 = sample_source_noise(&mut rng, s, ACTION_DIMS, &device())?;
@@ -211,7 +224,13 @@ impl Policy {
             let suffix = suffix_inputs(config, &refs, &shared, &rows, &vec![t; s], &schedule)?;
             let t1 = Instant::now();
             let posterior = options.sharpening.posterior.then_some(PosteriorAt { t, width });
-            let out = self.model.step_sharpened(&encoded, &suffix, options.sharpening.temperature_at(t), posterior)?;
+            let out = self.model.step_guided(
+                &encoded,
+                &suffix,
+                options.sharpening.temperature_at(t),
+                posterior,
+                null.as_ref().map(|n| (n, guidance)),
+            )?;
             profile.selection_ms += (t1 - t0).as_secs_f64() * 1e3;
             profile.network_ms += t1.elapsed().as_secs_f64() * 1e3;
             open = Some(out.open_logit);

@@ -71,25 +71,58 @@ pub fn prepare(
     }
     let cloud = lift_scene(observation, o.feature_stride, &o.workspace, o.semantic_tokens, o.geometric_tokens)?;
     let proprio = proprio_history_features(observation, o.proprio_history, &o.workspace)?;
-    let features = text.encode(&observation.instruction)?;
-    let tokens = features.tokens.to_dtype(DType::F32)?;
-    let t = tokens.dim(0)?.min(o.language_tokens);
-    let mut language = tokens.narrow(0, 0, t)?;
-    if t < o.language_tokens {
-        language = Tensor::cat(
-            &[language, Tensor::zeros((o.language_tokens - t, TEXT_HIDDEN_SIZE), DType::F32, tokens.device())?],
-            0,
-        )?;
-    }
+    let instruction = InstructionInputs::encode(&observation.instruction, config, text)?;
     Ok(PreparedObservation {
         images,
         cameras: observation.cameras.len(),
         cloud,
         proprio,
-        language,
-        instruction: features.embedding.clone(),
+        language: instruction.language,
+        instruction: instruction.embedding,
         keyframe: observation.keyframe.min(MAX_KEYFRAME_INDEX) as u32,
     })
+}
+
+/// The instruction that stands for none (`flow.instruction_dropout`,
+/// `flow.pointer_sharpening.guidance`): the empty string, which MiniLM reads as its two special
+/// tokens, so the features are those of a real (if empty) sentence and no attention over the
+/// instruction's tokens is left with only padding.
+pub const NULL_INSTRUCTION: &str = "";
+
+/// What the network reads of an instruction: its token features [Lt, 384], zero-padded or
+/// truncated to `observation.language_tokens`, and its sentence embedding.
+#[derive(Debug, Clone)]
+pub struct InstructionInputs {
+    pub language: Tensor,
+    pub embedding: Vec<f32>,
+}
+
+impl InstructionInputs {
+    pub fn encode(instruction: &str, config: &PolicyConfig, text: &mut TextEncoder) -> Result<Self> {
+        let lt = config.observation.language_tokens;
+        let features = text.encode(instruction)?;
+        let tokens = features.tokens.to_dtype(DType::F32)?;
+        let t = tokens.dim(0)?.min(lt);
+        let mut language = tokens.narrow(0, 0, t)?;
+        if t < lt {
+            language =
+                Tensor::cat(&[language, Tensor::zeros((lt - t, TEXT_HIDDEN_SIZE), DType::F32, tokens.device())?], 0)?;
+        }
+        Ok(Self { language, embedding: features.embedding.clone() })
+    }
+
+    /// [`NULL_INSTRUCTION`]'s.
+    pub fn null(config: &PolicyConfig, text: &mut TextEncoder) -> Result<Self> {
+        Self::encode(NULL_INSTRUCTION, config, text)
+    }
+}
+
+impl PreparedObservation {
+    /// The same observation with another instruction's features (the null instruction's, for
+    /// `flow.instruction_dropout` and `flow.pointer_sharpening.guidance`).
+    pub fn with_instruction(&self, instruction: &InstructionInputs) -> Self {
+        Self { language: instruction.language.clone(), instruction: instruction.embedding.clone(), ..self.clone() }
+    }
 }
 
 /// The observation restricted to the named cameras (`observation.cameras`), in that order.

@@ -442,6 +442,10 @@ impl PositionPointer {
     /// against the action token's output `last` [B, C] plus the instruction) of their positions;
     /// with the log attention [B, N] and the candidates' positions [B, N, 3]. `temperature`
     /// divides the scores (1: as trained; below 1 sharpens, `flow.pointer_sharpening`).
+    /// `guide` = (the null instruction's scores [B, 1, N] at the same step, w): the scores are
+    /// guided to s_null + w (s - s_null) before the posterior's likelihood
+    /// (`flow.pointer_sharpening.guidance`).
+    #[allow(clippy::too_many_arguments)]
     fn point(
         &self,
         memory: &PointerMemory,
@@ -450,13 +454,11 @@ impl PositionPointer {
         last: &Tensor,
         temperature: f64,
         posterior: Option<Posterior>,
+        guide: Option<(&Tensor, f64)>,
     ) -> Result<(Tensor, Tensor, Tensor)> {
-        let keys = Tensor::cat(&[&memory.keys, &self.key.forward(geometric)?], 1)?;
-        let xyz = Tensor::cat(&[&memory.xyz, geometric_xyz], 1)?;
-        let q = self.query.forward(last)?.add(&memory.query)?.unsqueeze(1)?;
-        let mut scores = attention_scores(&q, &keys)?;
-        if temperature != 1.0 {
-            scores = scores.affine(1.0 / temperature, 0.0)?;
+        let (mut scores, xyz) = self.scores(memory, geometric, geometric_xyz, last, temperature)?;
+        if let Some((null, w)) = guide {
+            scores = null.add(&scores.sub(null)?.affine(w, 0.0)?)?;
         }
         if let Some(Posterior { position, offset, at: PosteriorAt { t, width } }) = posterior {
             // log N(a_t; t (x_i + c), diag((1 - t)^2 + t^2 w^2)) up to a constant, per candidate i
@@ -482,6 +484,28 @@ impl PositionPointer {
         let log_weights = candle_nn::ops::log_softmax(&scores, 2)?;
         let pointed = log_weights.exp()?.matmul(&xyz)?.squeeze(1)?;
         Ok((pointed, log_weights.squeeze(1)?, xyz))
+    }
+}
+
+impl PositionPointer {
+    /// The scores [B, 1, N] of the semantic then geometric tokens (divided by `temperature`)
+    /// and the candidates' positions [B, N, 3].
+    fn scores(
+        &self,
+        memory: &PointerMemory,
+        geometric: &Tensor,
+        geometric_xyz: &Tensor,
+        last: &Tensor,
+        temperature: f64,
+    ) -> Result<(Tensor, Tensor)> {
+        let keys = Tensor::cat(&[&memory.keys, &self.key.forward(geometric)?], 1)?;
+        let xyz = Tensor::cat(&[&memory.xyz, geometric_xyz], 1)?;
+        let q = self.query.forward(last)?.add(&memory.query)?.unsqueeze(1)?;
+        let mut scores = attention_scores(&q, &keys)?;
+        if temperature != 1.0 {
+            scores = scores.affine(1.0 / temperature, 0.0)?;
+        }
+        Ok((scores, xyz))
     }
 }
 
@@ -822,6 +846,7 @@ impl FlowRam {
         goal: Option<&Tensor>,
         pointer_temperature: f64,
         posterior: Option<(&Tensor, PosteriorAt)>,
+        guide: Option<(&Tensor, f64)>,
     ) -> Result<Velocity> {
         let last = &readout.token;
         let mut position = self.position_head.forward(last)?;
@@ -832,7 +857,7 @@ impl FlowRam {
             (Some(p), Some((memory, geometric, xyz))) => {
                 let posterior = posterior.map(|(a_t, at)| Posterior { position: a_t, offset: &position, at });
                 let (pointed, log_weights, candidates) =
-                    p.point(memory, geometric, xyz, &readout.query, pointer_temperature, posterior)?;
+                    p.point(memory, geometric, xyz, &readout.query, pointer_temperature, posterior, guide)?;
                 position = position.add(&pointed)?;
                 if let Some(relation) = &self.relation {
                     let goal = goal.ok_or_else(|| {
@@ -903,7 +928,7 @@ impl FlowRam {
         let h = self.mamba.forward(&x, &Conditioning::prefix_suffix(lp, p_cond, ls, s_cond))?;
         let pointer = memory.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
         let readout = self.read_instruction(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, language.as_ref())?;
-        let mut velocity = self.heads(&readout, pointer, goal.as_ref(), 1.0, None)?;
+        let mut velocity = self.heads(&readout, pointer, goal.as_ref(), 1.0, None, None)?;
         velocity.goal = goal_attention;
         Ok(velocity)
     }
@@ -940,15 +965,58 @@ impl FlowRam {
         pointer_temperature: f64,
         posterior_at: Option<PosteriorAt>,
     ) -> Result<Velocity> {
+        self.step_guided(encoded, suffix, pointer_temperature, posterior_at, None)
+    }
+
+    /// [`Self::step_sharpened`] with, given `guidance` = (the same observation encoded with the
+    /// null instruction, w), the position pointer's scores guided by the instruction
+    /// (`flow.pointer_sharpening.guidance`): the null's step runs on the same suffix and its
+    /// scores s_null make s_null + w (s - s_null). Everything else is the instructed step's.
+    pub fn step_guided(
+        &self,
+        encoded: &EncodedObservation,
+        suffix: &SuffixInputs,
+        pointer_temperature: f64,
+        posterior_at: Option<PosteriorAt>,
+        guidance: Option<(&EncodedObservation, f64)>,
+    ) -> Result<Velocity> {
+        let (readout, geometric) = self.step_readout(encoded, suffix)?;
+        let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
+        let null_scores = match (guidance, &self.position_pointer) {
+            (Some((null, w)), Some(p)) if w != 1.0 => {
+                let memory = null.pointer.as_ref().ok_or_else(|| {
+                    PolicyError::Invalid(
+                        "the null instruction's encoding carries no pointer memory: encode it with this model".into(),
+                    )
+                })?;
+                let (readout, geometric) = self.step_readout(null, suffix)?;
+                let (scores, _) =
+                    p.scores(memory, &geometric, &suffix.geometric_xyz, &readout.query, pointer_temperature)?;
+                Some((scores, w))
+            }
+            _ => None,
+        };
+        // the noisy position a_t, only where the posterior reads it
+        let position = posterior_at.map(|_| suffix.action.narrow(1, 0, 3)).transpose()?;
+        self.heads(
+            &readout,
+            pointer,
+            encoded.goal.as_ref(),
+            pointer_temperature,
+            position.as_ref().zip(posterior_at),
+            null_scores.as_ref().map(|(s, w)| (s, *w)),
+        )
+    }
+
+    /// One step's scan from the cached prefix: what the heads read, and the suffix's geometric
+    /// tokens [B, N2, C] (the pointer's keys read them).
+    fn step_readout(&self, encoded: &EncodedObservation, suffix: &SuffixInputs) -> Result<(Readout, Tensor)> {
         let (tokens, condition) =
             self.suffix_tokens(&encoded.features, &encoded.condition, encoded.goal.as_ref(), suffix)?;
         let last = self.mamba.forward_last_token(&tokens, &Conditioning::Shared(condition), Some(&encoded.state))?;
         let readout = self.read_instruction(&last, encoded.language.as_ref())?;
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
-        let pointer = encoded.pointer.as_ref().map(|m| (m, &geometric, &suffix.geometric_xyz));
-        // the noisy position a_t, only where the posterior reads it
-        let position = posterior_at.map(|_| suffix.action.narrow(1, 0, 3)).transpose()?;
-        self.heads(&readout, pointer, encoded.goal.as_ref(), pointer_temperature, position.as_ref().zip(posterior_at))
+        Ok((readout, geometric))
     }
 }
 

@@ -6,6 +6,7 @@
 //! Every step's randomness is a pure function of (seed, step), so a run killed and resumed from
 //! its last checkpoint continues exactly as the uninterrupted run would have.
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use candle_core::Tensor;
 use candle_nn::VarMap;
@@ -25,7 +26,7 @@ use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{
     LossWeights, flow_matching_loss, flow_training_sample, pointer_loss, relational_pointer_target,
 };
-use crate::policy::inputs::{Augmentation, PreparedObservation, prefix_inputs, suffix_inputs};
+use crate::policy::inputs::{Augmentation, InstructionInputs, PreparedObservation, prefix_inputs, suffix_inputs};
 use crate::policy::network::init::seeded_var_builder;
 use crate::policy::network::model::{FlowRam, device};
 use crate::policy::network::text_encoder::TextEncoder;
@@ -89,6 +90,9 @@ impl Trainer {
         let mut draw_rng = step_rng_for(t_cfg.seed, step, "batch");
         let mut aug_rng = step_rng_for(t_cfg.seed, step, "augment");
         let mut noise_rng = step_rng_for(t_cfg.seed, step, "noise");
+        let mut dropout_rng = step_rng_for(t_cfg.seed, step, "instruction-dropout");
+        let dropout = config.flow.instruction_dropout;
+        let null = if dropout > 0.0 { Some(InstructionInputs::null(config, text)?) } else { None };
         let b = t_cfg.batch;
         // K flow samples per observation: rows i * K .. (i + 1) * K belong to observation i.
         let k = t_cfg.flow_samples;
@@ -100,7 +104,12 @@ impl Trainer {
         let (lo, hi) = (ws.min(), ws.max());
         for _ in 0..b {
             let s = data.draw(&mut draw_rng, &t_cfg.task_weights);
-            let prepared = data.prepared(s, config, text)?;
+            let mut prepared = data.prepared(s, config, text)?;
+            if let Some(null) = &null
+                && dropout_rng.random_bool(dropout)
+            {
+                prepared = Arc::new(prepared.with_instruction(null));
+            }
             let j = t_cfg.translation_jitter as f32;
             let shift: [f32; 3] = std::array::from_fn(|a| 2.0 * aug_rng.random_range(-j..=j) / (hi[a] - lo[a]));
             let bj = t_cfg.brightness_jitter as f32;

@@ -321,6 +321,7 @@ fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
         (&["run", "--task", "open_drawer", "--latency-ms", "100"][..], "--realtime"),
         (&["run", "--task", "stack_blocks", "--policy", "flowram", "--consensus", "mean"][..], "`medoid` or `mode`"),
         (&["bench", "success", "--tasks", "stack_blocks", "--pointer-temperature", "0"][..], "above 0"),
+        (&["bench", "success", "--tasks", "stack_blocks", "--pointer-guidance=-1"][..], "at least 0"),
         (&["predict", "--checkpoint", "x", "--episode", "y", "--keyframe", "0", "--consensus", "mean"][..], "`medoid`"),
         (
             &["bench", "heldout", "--checkpoint", "x", "--data", "y", "--train-data", "z", "--pointer-temperature=-1"]

@@ -204,6 +204,10 @@ fn three_evaluation_shards_merge_into_the_unsharded_table_and_resume() {
     failed_with(merge(&[&files[0], &files[1]]), &["missing"]);
     failed_with(success(None, Some((0, 3)), 2).output().unwrap(), &["--out"]);
     failed_with(success(Some(&files[0]), Some((0, 3)), 3).output().unwrap(), &["already holds"]);
+    // The instruction's guidance is part of the evaluation: a file of w = 1 does not resume at 2.
+    let mut guided = success(Some(&files[0]), Some((0, 3)), 2);
+    guided.args(["--pointer-guidance", "2"]);
+    failed_with(guided.output().unwrap(), &["already holds", "pointer guidance 2"]);
 }
 
 #[test]

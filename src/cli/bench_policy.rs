@@ -424,7 +424,7 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
         // Arms of one checkpoint differ only here (MODE and SHARP in docs/experiments.md).
         let sampling = |r: &SuccessRecord| {
             format!(
-                "weights {}, {} steps, {} samples ({}), pointer temperature {}{}{}, DRS {}",
+                "weights {}, {} steps, {} samples ({}), pointer temperature {}{}{}{}, DRS {}",
                 r.checkpoint_digest,
                 r.steps,
                 r.samples,
@@ -436,6 +436,7 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
                 } else {
                     String::new()
                 },
+                if r.pointer_guidance != 1.0 { format!(", guidance {}", r.pointer_guidance) } else { String::new() },
                 r.drs
             )
         };

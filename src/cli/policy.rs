@@ -147,6 +147,8 @@ struct PredictReport {
     pointer_posterior: bool,
     /// m (0: candidates are points).
     pointer_posterior_width: f64,
+    /// The instruction's guidance of the pointer (1: as trained).
+    pointer_guidance: f64,
     /// The index in `predictions` of the sample a closed-loop run executes (their consensus).
     executed: usize,
     recorded: KeyframePose,
@@ -197,6 +199,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         pointer_temperature: options.sharpening.temperature,
         pointer_posterior: options.sharpening.posterior,
         pointer_posterior_width: options.sharpening.posterior_width,
+        pointer_guidance: options.sharpening.guidance,
         executed,
         recorded,
         predictions,

@@ -163,6 +163,10 @@ pub struct SuccessRecord {
     /// absent).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub pointer_posterior_width: f64,
+    /// The instruction's guidance of the pointer (`flow.pointer_sharpening.guidance`; 1, as
+    /// trained, when absent).
+    #[serde(default = "as_trained", skip_serializing_if = "is_one")]
+    pub pointer_guidance: f64,
     pub drs: bool,
     pub cameras: Vec<String>,
     pub shard: Shard,
@@ -179,6 +183,10 @@ fn as_trained() -> f64 {
 
 fn is_zero(x: &f64) -> bool {
     *x == 0.0
+}
+
+fn is_one(x: &f64) -> bool {
+    *x == 1.0
 }
 
 impl SuccessRecord {
@@ -207,6 +215,7 @@ impl SuccessRecord {
             pointer_temperature: actor.options.sharpening.temperature,
             pointer_posterior: actor.options.sharpening.posterior,
             pointer_posterior_width: actor.options.sharpening.posterior_width,
+            pointer_guidance: actor.options.sharpening.guidance,
             drs: actor.options.samples_with_drs(actor.policy.config().radius_schedule),
             cameras: options.cameras.clone(),
             shard: options.shard,
@@ -219,7 +228,7 @@ impl SuccessRecord {
         let fields = |r: &Self| {
             format!(
                 "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, consensus {}, \
-                 pointer temperature {}, pointer posterior {} (width {} m), drs {}, cameras {:?}",
+                 pointer temperature {}, pointer posterior {} (width {} m), pointer guidance {}, drs {}, cameras {:?}",
                 r.checkpoint_digest,
                 r.tasks,
                 r.episodes,
@@ -231,6 +240,7 @@ impl SuccessRecord {
                 r.pointer_temperature,
                 r.pointer_posterior,
                 r.pointer_posterior_width,
+                r.pointer_guidance,
                 r.drs,
                 r.cameras
             )
@@ -460,6 +470,9 @@ pub struct HeldOutReport {
     /// m, `flow.pointer_sharpening.posterior_width` (0: candidates are points).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub pointer_posterior_width: f64,
+    /// `flow.pointer_sharpening.guidance` (1: as trained).
+    #[serde(default = "as_trained", skip_serializing_if = "is_one")]
+    pub pointer_guidance: f64,
     pub model: Errors,
     pub training_mean: Errors,
     pub task_mean: Errors,
@@ -746,6 +759,7 @@ pub fn heldout_errors(
         pointer_temperature: options.sharpening.temperature,
         pointer_posterior: options.sharpening.posterior,
         pointer_posterior_width: options.sharpening.posterior_width,
+        pointer_guidance: options.sharpening.guidance,
         model: all.model,
         training_mean: all.training_mean,
         task_mean: all.task_mean,

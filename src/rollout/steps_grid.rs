@@ -73,14 +73,16 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 r.pointer_temperature.to_bits(),
                 r.pointer_posterior,
                 r.pointer_posterior_width.to_bits(),
+                r.pointer_guidance.to_bits(),
             );
             (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), sampling)
         };
         if setting(record) != setting(first) {
             return Err(grid_error(format!(
                 "{} and {} are not on the same episodes and sampling: tasks {:?}, seeds {}+{}, max keyframes {}, \
-                 cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m) against tasks {:?}, seeds {}+{}, \
-                 max keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m)",
+                 cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m, guidance {}) against tasks {:?}, \
+                 seeds {}+{}, max keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m, \
+                 guidance {})",
                 path.display(),
                 first_path.display(),
                 record.tasks,
@@ -93,6 +95,7 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 record.pointer_temperature,
                 record.pointer_posterior,
                 record.pointer_posterior_width,
+                record.pointer_guidance,
                 first.tasks,
                 first.seed,
                 first.episodes,
@@ -102,7 +105,8 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 first.consensus.name(),
                 first.pointer_temperature,
                 first.pointer_posterior,
-                first.pointer_posterior_width
+                first.pointer_posterior_width,
+                first.pointer_guidance
             )));
         }
         if let Some(twin) = cells.iter().find(|c| {
@@ -364,6 +368,7 @@ mod tests {
             pointer_temperature: 1.0,
             pointer_posterior: false,
             pointer_posterior_width: 0.0,
+            pointer_guidance: 1.0,
             drs,
             cameras: vec!["front".into()],
             shard: Shard::WHOLE,

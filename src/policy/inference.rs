@@ -198,14 +198,16 @@ impl Policy {
         }
         options.sharpening.validate()?;
         let s = options.samples;
-        let encoded = encoded.repeat(s)?;
-        // classifier-free guidance: the same observation with the null instruction
+        // classifier-free guidance: the same observation with the null instruction (the same
+        // image features)
         let guidance = options.sharpening.guidance;
         let null = if options.sharpening.guided() {
-            Some(self.encode(&prepared.with_instruction(&self.null))?.repeat(s)?)
+            let prefix = prefix_inputs(config, &[(&prepared.with_instruction(&self.null), Augmentation::NONE)])?;
+            Some(self.model.encode_with_features(encoded.features.clone(), &prefix)?.repeat(s)?)
         } else {
             None
         };
+        let encoded = encoded.repeat(s)?;
         let schedule = options.schedule(config.radius_schedule);
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(options.seed);
         let a0 = sample_source_noise(&mut rng, s, ACTION_DIMS, &device())?;

@@ -935,7 +935,13 @@ impl FlowRam {
 
     /// Inference: encodes the observation once (image features, prefix scan state).
     pub fn encode(&self, prefix: &PrefixInputs) -> Result<EncodedObservation> {
-        let features = self.image_features(&prefix.images)?.detach();
+        self.encode_with_features(self.image_features(&prefix.images)?.detach(), prefix)
+    }
+
+    /// [`Self::encode`] with the image features [B * cells_per_sample, C] of `prefix.images`
+    /// already computed (the null instruction's encoding of an observation reuses the
+    /// instructed one's: the image encoder does not read the instruction).
+    pub fn encode_with_features(&self, features: Tensor, prefix: &PrefixInputs) -> Result<EncodedObservation> {
         let Prefix { tokens, condition, memory, goal, language } = self.prefix_tokens(&features, prefix)?;
         let state = self.mamba.forward_state(&tokens, &Conditioning::Shared(condition.clone()), None)?;
         let pointer =

@@ -1207,13 +1207,37 @@ fn the_instructions_guidance_is_as_trained_at_1_the_null_pointer_at_0_and_is_val
     assert_eq!(serde_json::from_str::<PointerSharpening>(&json).unwrap(), set);
     assert_eq!(PointerSharpening::OFF.with_guidance(Some(2.0)), set);
     assert_eq!(set.with_guidance(None), set);
-    // Refused: a negative or non-finite weight.
+    // The direction: s_null + w (s - s_null), so at w = 2 the log-odds between two candidates
+    // are twice the instructed ones less the null's.
+    let device = candle_core::Device::Cpu;
+    let s = candle_core::Tensor::new(&[[[1.0f32, 3.0, -2.0]]], &device).unwrap();
+    let null = candle_core::Tensor::new(&[[[0.5f32, 0.5, 1.0]]], &device).unwrap();
+    let guided = flowram::policy::network::model::guided_scores(&s, &null, 2.0).unwrap();
+    assert_eq!(guided.flatten_all().unwrap().to_vec1::<f32>().unwrap(), [1.5, 5.5, -5.0]);
+    // Refused: a negative or non-finite weight, and any guidance of a model without the pointer.
     let mut bad = config.clone();
     for guidance in [-0.5, f64::NAN, f64::INFINITY] {
         bad.flow.pointer_sharpening = PointerSharpening { guidance, ..PointerSharpening::OFF };
         let message = bad.validate().unwrap_err().to_string();
         assert!(message.contains("flow.pointer_sharpening.guidance"), "{message}");
     }
+    let mut no_pointer = tiny_config();
+    no_pointer.model.position_pointer = false;
+    no_pointer.flow.pointer_weight = 0.0;
+    no_pointer.model.relational_pointer = false;
+    no_pointer.model.relation_rotation = false;
+    no_pointer.validate().unwrap();
+    let mut guided_config = no_pointer.clone();
+    guided_config.flow.pointer_sharpening.guidance = 2.0;
+    let message = guided_config.validate().unwrap_err().to_string();
+    assert!(message.contains("guidance") && message.contains("position_pointer"), "{message}");
+    let mut plain = Policy::random(&no_pointer, text()).unwrap();
+    let options = SamplingOptions {
+        sharpening: PointerSharpening { guidance: 2.0, ..PointerSharpening::OFF },
+        ..SamplingOptions::new(2, 2, 3)
+    };
+    let message = plain.predict(&observation, &options).unwrap_err().to_string();
+    assert!(message.contains("--pointer-guidance") && message.contains("position_pointer"), "{message}");
 }
 
 #[test]
@@ -1231,6 +1255,15 @@ fn instruction_dropout_trains_on_the_null_instruction_from_its_own_stream_and_is
     assert!(once.total.is_finite(), "{once:?}");
     assert_ne!(plain, once);
     assert_eq!(once, again);
+    // On an episode whose instruction is already the null one, dropping it changes nothing, bit
+    // for bit: the dropout substitutes exactly the null features and draws from no other stream.
+    let mut silent = demonstration().clone();
+    silent.instruction = flowram::policy::inputs::NULL_INSTRUCTION.to_string();
+    let step_on = |config: &PolicyConfig| {
+        let mut data = TrainingData::from_episodes(vec![silent.clone()]).unwrap();
+        Trainer::new(config).unwrap().train_step(&mut data, &mut text()).unwrap()
+    };
+    assert_eq!(step_on(&config), step_on(&dropped));
     // Refused: a probability outside [0, 1).
     for p in [-0.1, 1.0, f64::NAN] {
         let mut bad = config.clone();

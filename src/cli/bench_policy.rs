@@ -296,7 +296,7 @@ pub fn heldout_cmd(args: HeldOutArgs) -> anyhow::Result<()> {
     let held_out = load_training_data(&args.data)?;
     let samples = args.samples.unwrap_or(policy.config().flow.consensus_samples);
     let consensus = args.consensus.unwrap_or(policy.config().flow.consensus);
-    let sharpening = args.sharpening.over(policy.config().flow.pointer_sharpening);
+    let sharpening = args.sharpening.over(policy.config());
     let options = SamplingOptions { steps, samples, drs: true, seed: 0, consensus, sharpening };
     let report = heldout_errors(&mut policy, &train_set, &held_out, &options, &mut TaskBar::new("keyframes"))?;
     if args.json {

@@ -3,7 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use clap::Args;
-use flowram::policy::config::{Consensus, PointerSharpening};
+use flowram::policy::config::{Consensus, PointerSharpening, PolicyConfig};
 use flowram::policy::inference::{Policy, SamplingOptions};
 use flowram::policy::network::text_encoder::TextEncoder;
 use flowram::rollout::learned::{DEFAULT_CAMERAS, FlowRamActor};
@@ -35,13 +35,25 @@ pub struct SharpeningArgs {
 }
 
 impl SharpeningArgs {
-    /// The checkpoint's `sharpening` with what the command line gave in its place.
-    pub fn over(&self, sharpening: PointerSharpening) -> PointerSharpening {
-        sharpening
+    /// The checkpoint's `flow.pointer_sharpening` with what the command line gave in its place.
+    /// Warns (stderr) when the instruction's guidance is asked of a checkpoint trained without
+    /// `flow.instruction_dropout`, which never saw the null instruction it contrasts with.
+    pub fn over(&self, config: &PolicyConfig) -> PointerSharpening {
+        let sharpening = config
+            .flow
+            .pointer_sharpening
             .with_temperature(self.pointer_temperature)
             .with_posterior(self.pointer_posterior)
             .with_posterior_width(self.pointer_posterior_width)
-            .with_guidance(self.pointer_guidance)
+            .with_guidance(self.pointer_guidance);
+        if sharpening.guided() && config.flow.instruction_dropout == 0.0 {
+            eprintln!(
+                "warning: --pointer-guidance {} on a checkpoint trained without flow.instruction_dropout: it never saw \
+                 the null instruction the guidance contrasts with",
+                sharpening.guidance
+            );
+        }
+        sharpening
     }
 }
 
@@ -109,7 +121,7 @@ impl LearnedArgs {
             drs: !self.no_drs,
             seed: 0,
             consensus: self.consensus.unwrap_or(policy.config().flow.consensus),
-            sharpening: self.sharpening.over(policy.config().flow.pointer_sharpening),
+            sharpening: self.sharpening.over(policy.config()),
         };
         Ok(FlowRamActor::new(policy, options))
     }

@@ -169,7 +169,7 @@ pub fn predict_cmd(args: PredictArgs) -> anyhow::Result<()> {
         drs: !args.no_drs,
         seed: args.seed,
         consensus: args.consensus.unwrap_or(policy.config().flow.consensus),
-        sharpening: args.sharpening.over(policy.config().flow.pointer_sharpening),
+        sharpening: args.sharpening.over(policy.config()),
     };
     let Samples { poses: keyframes, pointers } = policy.predict_explained(&observation, &options)?;
     let seconds = started.elapsed().as_secs_f64();

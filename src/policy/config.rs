@@ -381,8 +381,9 @@ pub struct PointerSharpening {
     /// posterior's likelihood is added. 1: as trained (no second pass); above 1: the candidates
     /// the instruction favours over no instruction gain log-odds (the named colour's button over
     /// the others'); 0: the unconditional pointer. Meant for checkpoints trained with
-    /// `flow.instruction_dropout`, which know the null instruction. Inference only; costs a
-    /// second encoding and a second scan per Euler step.
+    /// `flow.instruction_dropout`, which know the null instruction; needs `model.position_pointer`.
+    /// Inference only; costs a second prefix scan per keyframe and a second suffix scan per Euler
+    /// step (the image features are shared).
     #[serde(default = "one_f64", skip_serializing_if = "is_one")]
     pub guidance: f64,
 }
@@ -610,6 +611,13 @@ impl PolicyConfig {
             }
         }
         self.flow.pointer_sharpening.validate().map_err(|e| PolicyError::Invalid(format!("policy config: {e}")))?;
+        if self.flow.pointer_sharpening.guided() && !self.model.position_pointer {
+            return bad(
+                "flow.pointer_sharpening.guidance",
+                "1 unless model.position_pointer = true (it guides the pointer's scores)",
+                self.flow.pointer_sharpening.guidance.to_string(),
+            );
+        }
         let dropout = self.flow.instruction_dropout;
         if !(0.0..1.0).contains(&dropout) {
             return bad("flow.instruction_dropout", "a probability in [0, 1) (0: off)", dropout.to_string());

@@ -197,6 +197,13 @@ impl Policy {
             )));
         }
         options.sharpening.validate()?;
+        if options.sharpening.guided() && !config.model.position_pointer {
+            return Err(PolicyError::Invalid(format!(
+                "the instruction's guidance (flow.pointer_sharpening.guidance, --pointer-guidance {}) guides the \
+                 position pointer, and this model has none (model.position_pointer = false): leave it at 1",
+                options.sharpening.guidance
+            )));
+        }
         let s = options.samples;
         // classifier-free guidance: the same observation with the null instruction (the same
         // image features)

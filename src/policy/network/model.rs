@@ -458,7 +458,7 @@ impl PositionPointer {
     ) -> Result<(Tensor, Tensor, Tensor)> {
         let (mut scores, xyz) = self.scores(memory, geometric, geometric_xyz, last, temperature)?;
         if let Some((null, w)) = guide {
-            scores = null.add(&scores.sub(null)?.affine(w, 0.0)?)?;
+            scores = guided_scores(&scores, null, w)?;
         }
         if let Some(Posterior { position, offset, at: PosteriorAt { t, width } }) = posterior {
             // log N(a_t; t (x_i + c), diag((1 - t)^2 + t^2 w^2)) up to a constant, per candidate i
@@ -1024,6 +1024,11 @@ impl FlowRam {
         let geometric = tokens.narrow(1, 0, tokens.dim(1)? - 1)?;
         Ok((readout, geometric))
     }
+}
+
+/// Classifier-free guidance of scores by the instruction: s_null + w (s - s_null).
+pub fn guided_scores(scores: &Tensor, null: &Tensor, w: f64) -> Result<Tensor> {
+    Ok(null.add(&scores.sub(null)?.affine(w, 0.0)?)?)
 }
 
 /// Scaled dot-product scores of one query per sequence [B, 1, C] against keys [B, N, C]: [B, 1, N].

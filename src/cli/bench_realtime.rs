@@ -19,7 +19,7 @@ use flowram::rollout::stack::{load_controller_config, realtime_stack};
 use flowram::runtime::alloc_count;
 use flowram::runtime::control::{ControlSettings, Pacing};
 use flowram::runtime::messages::{Answer, Request};
-use flowram::runtime::pacing::{make_current_thread_background, share_one_core};
+use flowram::runtime::pacing::{share_one_core, start_background_pool};
 use flowram::runtime::planner::WorkspaceBox;
 use flowram::runtime::session::{KeyframeSource, Percentiles, SessionSettings, run_session};
 use flowram::sim::{Visuals, World};
@@ -137,7 +137,7 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
         .context("--one-core: confining the process to the control thread's core")?;
     if rt {
         // The policy's pool threads run at background priority: started before first use.
-        let _ = rayon::ThreadPoolBuilder::new().start_handler(|_| make_current_thread_background()).build_global();
+        start_background_pool();
     }
     let policy = if args.with_policy {
         let path = args.config.clone().unwrap_or_else(|| flowram::deps::models_dir().join("policy/paper.toml"));

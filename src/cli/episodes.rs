@@ -109,6 +109,11 @@ pub fn run(args: RunArgs) -> anyhow::Result<()> {
                 flowram::runtime::pacing::share_one_core()
                     .context("--one-core: confining the process to the control thread's core")?;
             }
+            if !args.no_rt && args.latency_ms.is_none() {
+                // as `bench realtime`: the policy's pool threads at background priority, started
+                // before the policy loads (and after --one-core, so it is sized for that core)
+                flowram::runtime::pacing::start_background_pool();
+            }
             let mut loaded = if args.policy == ActorKind::Flowram {
                 Some(args.learned.load_actor(&[args.task.as_str()])?)
             } else {

@@ -152,6 +152,16 @@ pub fn make_current_thread_background() {
     }
 }
 
+/// Starts rayon's global pool, where the policy computes ([`crate::policy::runtime::in_pool`]),
+/// with each of its threads at background priority ([`make_current_thread_background`]), so the
+/// control thread pre-empts them the moment it wakes. Call it before anything uses the pool and
+/// after [`share_one_core`] where that is asked (the pool is sized from the cores the process
+/// may use when it starts). False if the pool had already started: its threads keep the
+/// priority they have.
+pub fn start_background_pool() -> bool {
+    rayon::ThreadPoolBuilder::new().start_handler(|_| make_current_thread_background()).build_global().is_ok()
+}
+
 /// The calling thread's scheduling policy, restored when dropped: for code that must leave a
 /// thread as it found it (a library that raises the caller's priority, a control session that
 /// raises it for its own duration).

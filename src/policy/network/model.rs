@@ -485,9 +485,7 @@ impl PositionPointer {
         let pointed = log_weights.exp()?.matmul(&xyz)?.squeeze(1)?;
         Ok((pointed, log_weights.squeeze(1)?, xyz))
     }
-}
 
-impl PositionPointer {
     /// The scores [B, 1, N] of the semantic then geometric tokens (divided by `temperature`)
     /// and the candidates' positions [B, N, 3].
     fn scores(

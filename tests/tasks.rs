@@ -96,35 +96,48 @@ fn push_buttons_expert_succeeds_and_idling_does_not() {
 }
 
 /// A press counts once the cap is down 3 mm (RLBench's `JointCondition(.., 0.003)`), and the
-/// presses must be the instructed colours in order.
+/// presses must be the instructed colours in order. A pressed button's housing ring turns from
+/// red to lime and stays lime, as RLBench's top plate and wrapper do, so the scene shows it.
 #[test]
 fn push_buttons_counts_presses_past_3_mm_in_the_instructed_order() {
     use rand::SeedableRng;
+    const RED: [f32; 4] = [1.0, 0.0, 0.0, 1.0];
+    const LIME: [f32; 4] = [0.0, 1.0, 0.0, 1.0];
     let task = tasks::by_name("push_buttons").unwrap();
     let mut world = tasks::load_world(task.as_ref()).unwrap();
     world.reset_to("home").unwrap();
-    // Variation 20: push colour 0, then colour 1.
-    let mut state = task.reset(&mut world, 20, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    // Variation 18: push colour 0, then colour 1.
+    let mut state = task.reset(&mut world, 18, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    assert_eq!(task.instruction(18), "push the maroon button, then push the green button");
     let [first, second] = [state.targets[0].clone(), state.targets[1].clone()];
     let press = |world: &mut flowram::sim::World, button: &str, depth_mm: f64| {
         world.set_joint_position(&format!("{button}_press"), -depth_mm * 1e-3).unwrap();
     };
+    let ring = |world: &flowram::sim::World, button: &str| world.geom_rgba(&format!("{button}_housing")).unwrap();
+    for i in 0..3 {
+        assert_eq!(ring(&world, &format!("button_{i}")), RED, "button_{i} before any press");
+    }
     press(&mut world, &first, 2.5);
-    task.observe(&world, &mut state);
+    task.observe(&mut world, &mut state).unwrap();
     assert!(state.events.is_empty(), "2.5 mm is not a press: {:?}", state.events);
+    assert_eq!(ring(&world, &first), RED, "2.5 mm does not turn the ring");
     press(&mut world, &first, 3.5);
-    task.observe(&world, &mut state);
+    task.observe(&mut world, &mut state).unwrap();
     assert_eq!(state.events, std::slice::from_ref(&first));
+    assert_eq!(ring(&world, &first), LIME);
+    assert_eq!(ring(&world, &second), RED, "only the pressed button turns");
     assert!(!task.success(&world, &state), "one of two buttons pushed");
     press(&mut world, &first, 0.0);
     press(&mut world, &second, 3.5);
-    task.observe(&world, &mut state);
+    task.observe(&mut world, &mut state).unwrap();
     assert!(task.success(&world, &state), "{:?}", state.events);
-    // The same presses the other way round fail.
-    let mut state = task.reset(&mut world, 20, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    assert_eq!([ring(&world, &first), ring(&world, &second)], [LIME, LIME], "a sprung-back button stays lime");
+    // The same presses the other way round fail; a reset turns the rings red again.
+    let mut state = task.reset(&mut world, 18, &mut rand::rngs::StdRng::seed_from_u64(3)).unwrap();
+    assert_eq!([ring(&world, &first), ring(&world, &second)], [RED, RED], "reset");
     for button in [&second, &first] {
         press(&mut world, button, 8.0);
-        task.observe(&world, &mut state);
+        task.observe(&mut world, &mut state).unwrap();
         press(&mut world, button, 0.0);
     }
     assert_eq!(state.events, [second, first]);
@@ -376,6 +389,36 @@ fn sweep_to_dustpan_success_needs_all_the_dirt_in_the_named_pan() {
     let outside = frame * Point3::new(0.0, -0.07, 0.006);
     world.set_body_pose("dirt_2", &Isometry3::from(Translation3::from(outside.coords))).unwrap();
     assert!(!task.success(&world, &state), "one piece just in front of the pan");
+}
+
+/// The lime rings reach the cameras: pressing the buttons adds lime pixels to the front camera's
+/// frame (the palette has no lime cap, so a fresh scene has none).
+#[test]
+fn pressed_buttons_show_lime_rings_to_the_front_camera() {
+    use rand::SeedableRng;
+    let task = tasks::by_name("push_buttons").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    let mut rig = CameraRig::new(&world, 128, Visuals::Fast).unwrap();
+    let front = rig.camera_index("front").unwrap();
+    let lime_pixels = |rgb: &[u8]| {
+        rgb.chunks_exact(3).filter(|p| p[1] > 170 && u16::from(p[0]) + u16::from(p[2]) < u16::from(p[1]) / 2).count()
+    };
+    let mut state = None;
+    for v in 0..50 {
+        world.reset_to("home").unwrap();
+        let s = task.reset(&mut world, v, &mut rand::rngs::StdRng::seed_from_u64(v as u64)).unwrap();
+        let before = lime_pixels(&rig.render(&mut world, front).unwrap().rgb);
+        assert_eq!(before, 0, "variation {v}: lime before any press");
+        state = Some(s);
+    }
+    let mut state = state.unwrap();
+    for i in 0..3 {
+        world.set_joint_position(&format!("button_{i}_press"), -0.005).unwrap();
+        task.observe(&mut world, &mut state).unwrap();
+        world.set_joint_position(&format!("button_{i}_press"), 0.0).unwrap();
+    }
+    let after = lime_pixels(&rig.render(&mut world, front).unwrap().rgb);
+    assert!(after >= 30, "three pressed rings show {after} lime pixels at 128 px");
 }
 
 #[test]

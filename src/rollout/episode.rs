@@ -474,7 +474,7 @@ pub fn run_episode(
     }
     if let Actor::Idle { seconds } = actor {
         hold(world, &mut runner, f64::from(seconds))?;
-        task.observe(world, &mut state);
+        task.observe(world, &mut state)?;
     }
     result.success = !spoiled && task.success(world, &state);
     result.sim_seconds = world.time() - t0;
@@ -505,7 +505,7 @@ fn execute(
         }
         outcome = (r.reached, r.gripper);
     }
-    task.observe(world, state);
+    task.observe(world, state)?;
     result.reached_poses.push(tcp_proprio(world, keyframe.gripper_open));
     Ok(outcome)
 }

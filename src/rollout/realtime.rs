@@ -96,7 +96,7 @@ impl KeyframeSource for PolicySide<'_, '_> {
         self.world.set_physics_state(&snapshot.values).map_err(|e| e.to_string())?;
         let k = self.result.observations.len();
         if k > 0 {
-            self.task.observe(&self.world, &mut self.state);
+            self.task.observe(&mut self.world, &mut self.state).map_err(|e| e.to_string())?;
             self.result.reached_poses.push(tcp_proprio(&self.world, request.gripper_open));
             // A learned policy stops once the task is solved; the expert runs its plan to the end
             // (as in lock-step).
@@ -217,10 +217,10 @@ pub fn run_realtime_episode(
     };
     let session = SessionSettings { realtime_scheduling: options.realtime_scheduling, ..Default::default() };
     let out = run_session(control, planner, &mut side, session).map_err(|e| RolloutError::Thread(e.to_string()))?;
-    let world = out.control.backend.into_world();
+    let mut world = out.control.backend.into_world();
     let mut result = side.result;
     let mut state = side.state;
-    task.observe(&world, &mut state);
+    task.observe(&mut world, &mut state)?;
     result.success = side.solved || task.success(&world, &state);
     result.sim_seconds = world.time() - t0;
     let c = out.control.controller.osc().config();

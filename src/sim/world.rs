@@ -303,7 +303,14 @@ impl World {
         Ok(())
     }
 
-    /// Colour of a geom (RGBA in [0, 1]), e.g. for a task variation's object colours.
+    /// Colour of a geom (RGBA in [0, 1]), as the cameras render it.
+    pub fn geom_rgba(&self, name: &str) -> Result<[f32; 4], SimError> {
+        let id = self.id_of(MjtObjBase::mjOBJ_GEOM, "geom", name, self.model().ffi().ngeom as usize)?;
+        Ok(self.model().geom_rgba()[id])
+    }
+
+    /// Sets a geom's colour (RGBA in [0, 1]), e.g. for a task variation's object colours. It shows
+    /// over the geom's material colour unless it is MuJoCo's default grey (0.5, 0.5, 0.5, 1).
     pub fn set_geom_rgba(&mut self, name: &str, rgba: [f32; 4]) -> Result<(), SimError> {
         let id = self.id_of(MjtObjBase::mjOBJ_GEOM, "geom", name, self.model().ffi().ngeom as usize)?;
         // SAFETY: only a colour changes; no size, index or address of the model does.

@@ -52,8 +52,12 @@ pub trait Task: Send + Sync {
     fn instruction(&self, variation: usize) -> String;
     /// Places the objects (randomised with `rng`) in a world freshly reset to `home`.
     fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError>;
-    /// Called after each keyframe: records events (presses, grasps) into the state.
-    fn observe(&self, _world: &World, _state: &mut TaskState) {}
+    /// Called after each keyframe: records events (presses, grasps) into the state, and shows
+    /// in the scene what the task shows of them (RLBench's push_buttons turns a pressed
+    /// button green), so the next observation sees it.
+    fn observe(&self, _world: &mut World, _state: &mut TaskState) -> Result<(), TaskError> {
+        Ok(())
+    }
     /// Whether the episode has succeeded, from the simulator state (and recorded events).
     fn success(&self, world: &World, state: &TaskState) -> bool;
     /// The expert's keyframes in the world frame, from the objects as they are now.

@@ -51,8 +51,8 @@ pub struct ObservationConfig {
     /// this observation (0 at the start; clipped to [`MAX_KEYFRAME_INDEX`]), as a learned
     /// embedding added to every Mamba block's AdaLN condition. PerAct, RVT and RVT-2 give the
     /// policy the episode's timestep the same way; it tells the phases of a sequence apart that
-    /// look alike (the second button of "push the red button, then the maroon button", the
-    /// second block of a stack). Recovery detours do not count (see
+    /// look alike (the second block of a stack; the second button of "push the maroon button,
+    /// then the green button" before push_buttons' rings showed presses, expert version 2). Recovery detours do not count (see
     /// [`Observation::from_episode`](crate::policy::scene::observation::Observation::from_episode)).
     /// Off (the paper): the observation alone.
     #[serde(default)]
@@ -63,7 +63,7 @@ pub struct ObservationConfig {
     /// normalised as the current one is and fed together through the proprioception MLP into
     /// the AdaLN condition. The paper's release and 3D Diffuser Actor train with
     /// `--num_history 3`: where the gripper has been says which button was pushed (they spring
-    /// back) and how high the last block was placed. Recovery detours are not part of the
+    /// back; since expert version 2 their rings also show it) and how high the last block was placed. Recovery detours are not part of the
     /// history (see `keyframe_index`). 1 (the default): the current pose alone.
     #[serde(default = "one")]
     pub proprio_history: usize,
@@ -99,8 +99,8 @@ pub struct ModelConfig {
     /// condition rather than be averaged with the words every instruction of the task shares)
     /// or `"conditioned"` (that pooling with scores that also depend on the AdaLN condition,
     /// proprioception plus `observation.keyframe_index`, and on each token's place in the
-    /// instruction, so "push the red button, then the maroon one" can pool to "red" before the
-    /// first press and to "maroon" after it).
+    /// instruction, so "push the maroon button, then the green one" can pool to "maroon" before
+    /// the first press and to "green" after it).
     #[serde(default)]
     pub instruction_pooling: InstructionPooling,
     /// Append an instruction-pointer token to the prefix: a softmax attention whose query is the

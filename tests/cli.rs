@@ -432,6 +432,21 @@ fn bench_compare_pairs_two_results_files_on_their_seeds() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(1), "{err}");
     assert!(err.contains("a.json") && err.contains("c.json") && err.contains("same episodes"), "{err}");
+    // other expert versions are other scenes: refused; a record without versions is paired, with a warning
+    let (v1, v2) = (dir.path().join("v1.json"), dir.path().join("v2.json"));
+    for (path, versions) in [(&v1, [1, 1]), (&v2, [1, 2])] {
+        results_file(path, "vv", [[true; 4], [true; 4]], 1000);
+        let mut record: serde_json::Value = serde_json::from_slice(&std::fs::read(path).unwrap()).unwrap();
+        record["expert_versions"] = serde_json::json!(versions);
+        std::fs::write(path, serde_json::to_vec(&record).unwrap()).unwrap();
+    }
+    let out = common::flowram().args(["bench", "compare"]).arg(&v2).arg(&v1).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(err.contains("same scenes") && err.contains("push_buttons 2") && err.contains("push_buttons 1"), "{err}");
+    let out = common::flowram().args(["bench", "compare"]).arg(&v2).arg(&a).output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success() && err.contains("a.json predates recorded expert versions"), "{err}");
     // a missing file says how to make one
     let out = common::flowram().args(["bench", "compare"]).arg(&a).arg(dir.path().join("none.json")).output().unwrap();
     let err = String::from_utf8_lossy(&out.stderr);

@@ -208,6 +208,21 @@ fn three_evaluation_shards_merge_into_the_unsharded_table_and_resume() {
     let mut guided = success(Some(&files[0]), Some((0, 3)), 2);
     guided.args(["--pointer-guidance", "2"]);
     failed_with(guided.output().unwrap(), &["already holds", "pointer guidance 2"]);
+    // So are the tasks' expert versions (another version's seeds are other scenes).
+    let mut record: Value = serde_json::from_slice(&std::fs::read(&files[0]).unwrap()).unwrap();
+    let versions = record["expert_versions"].as_array().expect("records carry the expert versions").clone();
+    assert_eq!(versions.len(), record["tasks"].as_array().unwrap().len());
+    record["expert_versions"] = Value::Array(versions.iter().map(|v| (v.as_u64().unwrap() + 1).into()).collect());
+    let stale = dir.path().join("stale.json");
+    std::fs::write(&stale, serde_json::to_vec(&record).unwrap()).unwrap();
+    failed_with(
+        success(Some(&stale), Some((0, 3)), 2).output().unwrap(),
+        &[
+            "already holds",
+            "expert versions open_drawer 1, slide_block 1",
+            "expert versions open_drawer 2, slide_block 2",
+        ],
+    );
 }
 
 #[test]

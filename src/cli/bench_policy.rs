@@ -420,6 +420,27 @@ pub fn compare_cmd(args: CompareArgs) -> anyhow::Result<()> {
         b.seed,
         b.episodes
     );
+    if !a.expert_versions.is_empty() && !b.expert_versions.is_empty() {
+        anyhow::ensure!(
+            a.expert_versions == b.expert_versions,
+            "{} and {} are not on the same scenes: expert versions {} against {} (a task's new expert version \
+             changes what its seeds show; evaluate both checkpoints with this build)",
+            args.results.display(),
+            args.baseline.display(),
+            a.expert_versions_text(),
+            b.expert_versions_text()
+        );
+    } else {
+        for (path, r) in [(&args.results, &a), (&args.baseline, &b)] {
+            if r.expert_versions.is_empty() {
+                eprintln!(
+                    "warning: {} predates recorded expert versions; a task whose expert changed since it was made \
+                     (push_buttons: version 2 on 2026-12-07) shows other scenes at the same seeds",
+                    path.display()
+                );
+            }
+        }
+    }
     if !args.json {
         // Arms of one checkpoint differ only here (MODE and SHARP in docs/experiments.md).
         let sampling = |r: &SuccessRecord| {

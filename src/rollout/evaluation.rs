@@ -169,6 +169,12 @@ pub struct SuccessRecord {
     pub pointer_guidance: f64,
     pub drs: bool,
     pub cameras: Vec<String>,
+    /// Each task's expert version ([`Task::expert_version`]), in the order of `tasks`: a version
+    /// fixes the scenes a seed makes (push_buttons' version 2 recoloured its buttons), so records
+    /// of other versions hold other episodes. Absent in records from before 2026-12-07
+    /// (session 35): unknown.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub expert_versions: Vec<u32>,
     pub shard: Shard,
     pub outcomes: Vec<RecordedOutcome>,
 }
@@ -218,9 +224,20 @@ impl SuccessRecord {
             pointer_guidance: actor.options.sharpening.guidance,
             drs: actor.options.samples_with_drs(actor.policy.config().radius_schedule),
             cameras: options.cameras.clone(),
+            expert_versions: task_list.iter().map(|t| t.expert_version()).collect(),
             shard: options.shard,
             outcomes: Vec::new(),
         })
+    }
+
+    /// The tasks' expert versions as text, for messages ("unknown" for records from before
+    /// they were recorded).
+    pub fn expert_versions_text(&self) -> String {
+        if self.expert_versions.is_empty() {
+            "unknown".into()
+        } else {
+            self.tasks.iter().zip(&self.expert_versions).map(|(t, v)| format!("{t} {v}")).collect::<Vec<_>>().join(", ")
+        }
     }
 
     /// The same evaluation (all but the outcomes, the revision and the checkpoint's path)?
@@ -228,7 +245,8 @@ impl SuccessRecord {
         let fields = |r: &Self| {
             format!(
                 "checkpoint digest {}, tasks {:?}, episodes {}, seed {}, max keyframes {}, steps {}, samples {}, consensus {}, \
-                 pointer temperature {}, pointer posterior {} (width {} m), pointer guidance {}, drs {}, cameras {:?}",
+                 pointer temperature {}, pointer posterior {} (width {} m), pointer guidance {}, drs {}, cameras {:?}, \
+                 expert versions {}",
                 r.checkpoint_digest,
                 r.tasks,
                 r.episodes,
@@ -242,7 +260,8 @@ impl SuccessRecord {
                 r.pointer_posterior_width,
                 r.pointer_guidance,
                 r.drs,
-                r.cameras
+                r.cameras,
+                r.expert_versions_text()
             )
         };
         let (a, b) = (fields(self), fields(other));
@@ -606,12 +625,19 @@ struct InstructedKeyframe {
 /// from where the episode's own expert goes. In colour tasks, whose variations also paint the
 /// objects (another colour's scene is another observation), the other experts are the same
 /// scene's experts sent to the objects of other colours ([`tasks::Task::target_alternatives`]).
-/// `None` for tasks this build does not know or whose alternatives never part.
+/// `None` for tasks this build does not know, for episodes whose instruction is not what this
+/// build's task says for their variation (another expert version's scene), or where the
+/// alternatives never part.
 fn instructed_keyframe(
     episode: &Episode,
     world: &mut Option<crate::sim::World>,
 ) -> Result<Option<InstructedKeyframe>, RolloutError> {
     let Ok(task) = tasks::by_name(&episode.task) else { return Ok(None) };
+    // An episode of another expert version whose variation now reads differently (push_buttons'
+    // version 1 colours) is another scene: its alternatives cannot be replanned here.
+    if episode.variation >= task.variation_count() || task.instruction(episode.variation) != episode.instruction {
+        return Ok(None);
+    }
     if world.is_none() {
         *world = Some(tasks::load_world(task.as_ref())?);
     }

@@ -75,14 +75,22 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 r.pointer_posterior_width.to_bits(),
                 r.pointer_guidance.to_bits(),
             );
-            (r.tasks.clone(), r.seed, r.episodes, r.max_keyframes, r.cameras.clone(), sampling)
+            (
+                r.tasks.clone(),
+                r.seed,
+                r.episodes,
+                r.max_keyframes,
+                r.cameras.clone(),
+                sampling,
+                r.expert_versions.clone(),
+            )
         };
         if setting(record) != setting(first) {
             return Err(grid_error(format!(
                 "{} and {} are not on the same episodes and sampling: tasks {:?}, seeds {}+{}, max keyframes {}, \
-                 cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m, guidance {}) against tasks {:?}, \
-                 seeds {}+{}, max keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m, \
-                 guidance {})",
+                 cameras {:?}, samples {} ({}, pointer temperature {}, posterior {} width {} m, guidance {}), expert versions {} \
+                 against tasks {:?}, seeds {}+{}, max keyframes {}, cameras {:?}, samples {} ({}, pointer temperature {}, \
+                 posterior {} width {} m, guidance {}), expert versions {}",
                 path.display(),
                 first_path.display(),
                 record.tasks,
@@ -96,6 +104,7 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 record.pointer_posterior,
                 record.pointer_posterior_width,
                 record.pointer_guidance,
+                record.expert_versions_text(),
                 first.tasks,
                 first.seed,
                 first.episodes,
@@ -106,7 +115,8 @@ pub fn steps_grid(records: &[(PathBuf, SuccessRecord)]) -> Result<Vec<GridCell>,
                 first.pointer_temperature,
                 first.pointer_posterior,
                 first.pointer_posterior_width,
-                first.pointer_guidance
+                first.pointer_guidance,
+                first.expert_versions_text()
             )));
         }
         if let Some(twin) = cells.iter().find(|c| {
@@ -371,6 +381,7 @@ mod tests {
             pointer_guidance: 1.0,
             drs,
             cameras: vec!["front".into()],
+            expert_versions: vec![1, 2],
             shard: Shard::WHOLE,
             outcomes,
         }

@@ -44,8 +44,18 @@ impl World {
         Ok(())
     }
 
-    /// Stops capturing and returns the video.
+    /// Stops capturing and returns the video, which ends on a frame of the world as it is now
+    /// (what changed since the last step shows: a task's last event, e.g. push_buttons' ring
+    /// turning lime after the press that ends a policy's episode).
     pub fn stop_recording(&mut self) -> Result<Option<Video>, SimError> {
+        if let Some(r) = self.recorder.as_mut()
+            && r.error.is_none()
+        {
+            match r.rig.draw(&mut self.data, r.camera) {
+                Ok(()) => r.frames.push(r.rig.last_rgb().to_vec()),
+                Err(e) => r.error = Some(e),
+            }
+        }
         let Some(r) = self.recorder.take() else { return Ok(None) };
         if let Some(e) = r.error {
             return Err(e);

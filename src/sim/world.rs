@@ -303,7 +303,8 @@ impl World {
         Ok(())
     }
 
-    /// Colour of a geom (RGBA in [0, 1]), as the cameras render it.
+    /// A geom's own colour (RGBA in [0, 1]); the cameras show it unless it is MuJoCo's default
+    /// grey on a geom with a material, which shows the material's.
     pub fn geom_rgba(&self, name: &str) -> Result<[f32; 4], SimError> {
         let id = self.id_of(MjtObjBase::mjOBJ_GEOM, "geom", name, self.model().ffi().ngeom as usize)?;
         Ok(self.model().geom_rgba()[id])

@@ -53,8 +53,9 @@ pub trait Task: Send + Sync {
     /// Places the objects (randomised with `rng`) in a world freshly reset to `home`.
     fn reset(&self, world: &mut World, variation: usize, rng: &mut StdRng) -> Result<TaskState, TaskError>;
     /// Called after each keyframe: records events (presses, grasps) into the state, and shows
-    /// in the scene what the task shows of them (RLBench's push_buttons turns a pressed
-    /// button green), so the next observation sees it.
+    /// in the scene what the task shows of them (push_buttons turns a pressed button's ring
+    /// lime, as RLBench does), so the next observation sees it. `reset` undoes what this paints
+    /// (`World::reset_to` does not restore colours).
     fn observe(&self, _world: &mut World, _state: &mut TaskState) -> Result<(), TaskError> {
         Ok(())
     }

@@ -60,7 +60,7 @@ fn sequence(variation: usize) -> Vec<usize> {
     match variation {
         0..18 => vec![variation],
         18..34 => vec![variation - 18, (variation - 17) % n],
-        _ => vec![variation - 34, (variation - 33) % n, (variation - 32) % n],
+        _ => vec![(variation - 34) % n, (variation - 33) % n, (variation - 32) % n],
     }
 }
 

@@ -52,7 +52,8 @@ pub struct ObservationConfig {
     /// embedding added to every Mamba block's AdaLN condition. PerAct, RVT and RVT-2 give the
     /// policy the episode's timestep the same way; it tells the phases of a sequence apart that
     /// look alike (the second block of a stack; the second button of "push the maroon button,
-    /// then the green button" before push_buttons' rings showed presses, expert version 2). Recovery detours do not count (see
+    /// then the green button" before push_buttons' rings showed presses, expert version 2).
+    /// Recovery detours do not count (see
     /// [`Observation::from_episode`](crate::policy::scene::observation::Observation::from_episode)).
     /// Off (the paper): the observation alone.
     #[serde(default)]
@@ -63,8 +64,8 @@ pub struct ObservationConfig {
     /// normalised as the current one is and fed together through the proprioception MLP into
     /// the AdaLN condition. The paper's release and 3D Diffuser Actor train with
     /// `--num_history 3`: where the gripper has been says which button was pushed (they spring
-    /// back; since expert version 2 their rings also show it) and how high the last block was placed. Recovery detours are not part of the
-    /// history (see `keyframe_index`). 1 (the default): the current pose alone.
+    /// back; since expert version 2 their rings also show it) and how high the last block was
+    /// placed. Recovery detours are not part of the history (see `keyframe_index`). 1 (the default): the current pose alone.
     #[serde(default = "one")]
     pub proprio_history: usize,
 }

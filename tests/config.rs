@@ -22,6 +22,7 @@ fn shipped_profiles_load() {
     assert!((c.reached_orientation - 0.5f64.to_radians()).abs() < 1e-12, "deg converted to rad");
     assert!((c.reached_position - 0.001).abs() < 1e-12, "mm converted to m");
     assert_eq!(c.time_limit, 0.0, "no wall-clock limit in the shipped (simulation) profile");
+    assert_eq!(c.scaling_iterations, 4);
     let real_time = osc_text()
         .replace("time_limit = { value = 0.0, unit = \"us\" }", "time_limit = { value = 500.0, unit = \"us\" }");
     let c = OscConfig::from_config(ConfigFile::parse(Path::new("osc.toml"), &real_time).unwrap()).unwrap();
@@ -89,6 +90,19 @@ fn unknown_keys_and_bad_values_are_refused() {
     assert!(err.contains("qp.posture_weight") || err.contains("qp.posture_wieght"), "{err}");
     let err = osc_error(&osc_text().replace("velocity_scale = 0.5", "velocity_scale = 1.5"));
     assert!(err.contains("motion.velocity_scale") && err.contains("(0, 1]"), "{err}");
+    for bad in ["2.5", "-1", "1000"] {
+        let err = osc_error(&osc_text().replace("scaling_iterations = 4", &format!("scaling_iterations = {bad}")));
+        assert!(err.contains("qp.scaling_iterations"), "{bad}: {err}");
+    }
+    let c = OscConfig::from_config(
+        ConfigFile::parse(
+            Path::new("osc.toml"),
+            &osc_text().replace("scaling_iterations = 4", "scaling_iterations = 0"),
+        )
+        .unwrap(),
+    )
+    .unwrap();
+    assert_eq!(c.scaling_iterations, 0, "0 turns OSQP's scaling off");
     let err = ConfigFile::parse(Path::new("osc.toml"), "this is [not toml").err().unwrap().to_string();
     assert!(err.contains("not valid TOML"), "{err}");
 }

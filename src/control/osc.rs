@@ -152,6 +152,7 @@ impl Osc {
             .verbose(false)
             .warm_starting(true)
             .polishing(false)
+            .scaling(Some(config.scaling_iterations).filter(|&n| n > 0))
             .adaptive_rho(true)
             .adaptive_rho_interval(Some(25))
             .eps_abs(1e-5)

@@ -47,6 +47,9 @@ pub struct OscConfig {
     pub limit_horizon: f64,
     pub limit_margin: f64,
     pub max_iterations: u32,
+    /// OSQP's data scaling (Ruiz equilibration) iterations, redone at every tick's update; 0 =
+    /// no scaling.
+    pub scaling_iterations: u32,
     /// Wall-clock limit of one solve (s); 0 = none (deterministic lock-step simulation).
     pub time_limit: f64,
     pub fallback_damping: JointVector,
@@ -101,6 +104,13 @@ impl OscConfig {
         if max_iterations.fract() != 0.0 || max_iterations > 1e6 {
             return Err(f.error("qp.max_iterations", "expected a whole number of iterations up to 1000000"));
         }
+        let scaling_iterations = f.number_field("qp.scaling_iterations", Sign::NonNegative)?;
+        if scaling_iterations.fract() != 0.0 || scaling_iterations > 100.0 {
+            return Err(f.error(
+                "qp.scaling_iterations",
+                "expected a whole number of scaling iterations from 0 (no scaling) to 100",
+            ));
+        }
         let config = Self {
             position,
             orientation,
@@ -114,6 +124,7 @@ impl OscConfig {
             limit_horizon: f.quantity("qp.limit_horizon", Quantity::Time, Sign::Positive)?,
             limit_margin: f.quantity("qp.limit_margin", Quantity::Angle, Sign::NonNegative)?,
             max_iterations: max_iterations as u32,
+            scaling_iterations: scaling_iterations as u32,
             time_limit: f.quantity("qp.time_limit", Quantity::Time, Sign::NonNegative)?,
             fallback_damping: JointVector::from_column_slice(&f.quantities::<7>(
                 "fallback.damping",

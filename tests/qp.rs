@@ -3,24 +3,20 @@
 //! an error instead of a panic (the OSC calls it in every control tick).
 use osqp::{CscMatrix, Problem, Settings, Status};
 
-/// A 3-variable QP with a dense upper-triangular P and a dense 2 x 3 A (explicit patterns).
+fn csc(nrows: usize, ncols: usize, indptr: &[usize], indices: &[usize], data: &[f64]) -> CscMatrix<'static> {
+    CscMatrix {
+        nrows,
+        ncols,
+        indptr: indptr.to_vec().into(),
+        indices: indices.to_vec().into(),
+        data: data.to_vec().into(),
+    }
+}
+
+/// A 3-variable QP's matrices: a dense upper-triangular P, by columns (0,0) (0,1) (1,1) (0,2)
+/// (1,2) (2,2), and a dense 2 x 3 A (explicit patterns).
 fn problem(p: &[f64; 6], a: &[f64; 6]) -> (CscMatrix<'static>, CscMatrix<'static>) {
-    // Upper triangle of a 3 x 3 matrix, by columns: (0,0) (0,1) (1,1) (0,2) (1,2) (2,2).
-    let p = CscMatrix {
-        nrows: 3,
-        ncols: 3,
-        indptr: vec![0, 1, 3, 6].into(),
-        indices: vec![0, 0, 1, 0, 1, 2].into(),
-        data: p.to_vec().into(),
-    };
-    let a = CscMatrix {
-        nrows: 2,
-        ncols: 3,
-        indptr: vec![0, 2, 4, 6].into(),
-        indices: vec![0, 1, 0, 1, 0, 1].into(),
-        data: a.to_vec().into(),
-    };
-    (p, a)
+    (csc(3, 3, &[0, 1, 3, 6], &[0, 0, 1, 0, 1, 2], p), csc(2, 3, &[0, 2, 4, 6], &[0, 1, 0, 1, 0, 1], a))
 }
 
 fn settings() -> Settings {
@@ -64,13 +60,7 @@ fn update_p_a_refuses_bad_data_without_panicking() {
     let (p0, a0) = problem(&[2.0, 0.1, 1.5, 0.0, 0.2, 1.0], &[1.0, 0.0, 1.0, 1.0, 0.0, 1.0]);
     let mut qp = Problem::new(&p0, &q, &a0, &l, &u, &settings()).unwrap();
     // More values than P has entries: OSQP refuses the update.
-    let too_long = CscMatrix {
-        nrows: 3,
-        ncols: 3,
-        indptr: vec![0, 1, 3, 7].into(),
-        indices: vec![0, 0, 1, 0, 1, 2, 2].into(),
-        data: vec![1.0; 7].into(),
-    };
+    let too_long = csc(3, 3, &[0, 1, 3, 7], &[0, 0, 1, 0, 1, 2, 2], &[1.0; 7]);
     let refused = qp.update_P_A(&too_long, &a0).unwrap_err();
     assert_ne!(refused.code, 0);
     assert!(refused.to_string().contains("exit code"), "{refused}");

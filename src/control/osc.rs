@@ -415,7 +415,8 @@ impl Osc {
         // One call for both: OSQP rescales and refactors its KKT matrix once (twice with
         // `update_P` then `update_A`, about 7 us more per tick).
         if self.problem.update_P_A(&self.p, &self.a).is_err() {
-            // Not quasidefinite (a non-finite model): the caller falls back to damping.
+            // OSQP refused the data (e.g. a zero pivot: the KKT matrix not quasidefinite): the
+            // caller falls back to damping, as for a failed solve.
             self.stats.other += 1;
             return None;
         }

@@ -88,6 +88,7 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
         grasp_probability: 0.0,
         detours: 1,
         yaw_sigma_deg: 0.0,
+        shuffle_targets: false,
     };
     let run = |world: &mut _, target| {
         run_episode(task.as_ref(), world, 20, 5, Actor::PerturbedExpert(always(target)), None).unwrap()
@@ -140,6 +141,7 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
         grasp_probability: 0.0,
         detours: 1,
         yaw_sigma_deg: 0.0,
+        shuffle_targets: false,
     };
     let plain = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(never), None).unwrap();
     assert_eq!(plain.actions, clean.actions);
@@ -152,6 +154,7 @@ fn perturbed_expert_adds_a_recovery_sample_before_each_approach_and_still_succee
             grasp_probability,
             detours: 1,
             yaw_sigma_deg: 0.0,
+            shuffle_targets: false,
         };
         let err =
             run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(bad), None).unwrap_err().to_string();
@@ -173,6 +176,7 @@ fn several_detours_per_approach_share_the_first_and_all_go_on_to_the_next_keyfra
         grasp_probability: 0.0,
         detours,
         yaw_sigma_deg: 0.0,
+        shuffle_targets: false,
     };
     let one = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(with(1)), None).unwrap();
     let three = run_episode(task.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(with(3)), None).unwrap();
@@ -223,6 +227,7 @@ fn turned_detours_keep_their_positions_and_go_on_to_the_experts_yaw() {
         grasp_probability: 0.0,
         detours: 1,
         yaw_sigma_deg,
+        shuffle_targets: false,
     };
     let straight = run_episode(task.as_ref(), &mut world, 0, 7, Actor::PerturbedExpert(with(0.0)), None).unwrap();
     let turned = run_episode(task.as_ref(), &mut world, 0, 7, Actor::PerturbedExpert(with(15.0)), None).unwrap();
@@ -280,6 +285,7 @@ fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() 
         grasp_probability: 1.0,
         detours: 1,
         yaw_sigma_deg: 0.0,
+        shuffle_targets: false,
     };
     let run = |world: &mut _| run_episode(task.as_ref(), world, 0, 7, Actor::PerturbedExpert(misses), None).unwrap();
     let missed = run(&mut world);
@@ -314,6 +320,49 @@ fn missed_grasps_are_recorded_with_a_reopening_and_the_episode_still_succeeds() 
     let touched = run_episode(task.as_ref(), &mut world, 1, 2, Actor::PerturbedExpert(misses), None).unwrap();
     assert!(!touched.success);
     assert!(touched.problems.iter().any(|(_, p)| p.contains("not closed on nothing")), "{:?}", touched.problems);
+}
+
+#[test]
+fn shuffled_targets_stack_the_same_blocks_in_another_order_and_are_refused_where_order_matters() {
+    let task = tasks::by_name("stack_blocks").unwrap();
+    let mut world = tasks::load_world(task.as_ref()).unwrap();
+    // variation 2: four red blocks; no detours, so only the order differs from the expert's
+    let shuffled = Perturbation {
+        probability: 0.0,
+        sigma_m: 0.03,
+        target: RecoveryTarget::Next,
+        grasp_probability: 0.0,
+        detours: 1,
+        yaw_sigma_deg: 0.0,
+        shuffle_targets: true,
+    };
+    let picks = |actions: &[[f32; 8]]| -> Vec<[f32; 2]> {
+        // above each block: keyframes 0, 6, 12, 18 of the pick-and-place plan
+        actions.iter().step_by(6).map(|a| [a[0], a[1]]).collect()
+    };
+    let clean = run_episode(task.as_ref(), &mut world, 2, 11, Actor::Expert, None).unwrap();
+    let other = run_episode(task.as_ref(), &mut world, 2, 11, Actor::PerturbedExpert(shuffled), None).unwrap();
+    assert!(clean.success && other.success, "problems: {:?} {:?}", clean.problems, other.problems);
+    assert_eq!(clean.keyframes, 24);
+    assert_eq!(other.keyframes, clean.keyframes);
+    let (a, b) = (picks(&clean.actions), picks(&other.actions));
+    assert_ne!(a, b, "seed 11's draw takes the blocks in another order");
+    let sorted = |mut v: Vec<[f32; 2]>| {
+        v.sort_by(|p, q| p[1].total_cmp(&q[1]));
+        v
+    };
+    for (p, q) in sorted(a).iter().zip(sorted(b)) {
+        assert!((p[0] - q[0]).abs() < 1e-3 && (p[1] - q[1]).abs() < 1e-3, "the same four blocks: {p:?} {q:?}");
+    }
+    // the same seed shuffles the same way
+    let again = run_episode(task.as_ref(), &mut world, 2, 11, Actor::PerturbedExpert(shuffled), None).unwrap();
+    assert_eq!(again.actions, other.actions);
+    // push_buttons' order is the instruction's: refused, with what to do
+    let buttons = tasks::by_name("push_buttons").unwrap();
+    let mut world = tasks::load_world(buttons.as_ref()).unwrap();
+    let err = run_episode(buttons.as_ref(), &mut world, 20, 5, Actor::PerturbedExpert(shuffled), None).unwrap_err();
+    assert!(matches!(err, RolloutError::Perturbation { .. }));
+    assert!(err.to_string().contains("without --shuffle-targets"), "{err}");
 }
 
 #[test]

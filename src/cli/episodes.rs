@@ -250,6 +250,11 @@ pub struct CollectArgs {
     /// sigma (0 to 17.5; with --perturb-sigma; README, "Recovery samples"). 0: no turn.
     #[arg(long, default_value_t = 0.0, requires = "perturb_sigma")]
     perturb_yaw_deg: f64,
+    /// Take the task's targets in a random order (from the episode seed) instead of the
+    /// expert's; only for tasks whose success accepts any order (stack_blocks). With
+    /// --perturb-sigma (README, "Recovery samples").
+    #[arg(long, requires = "perturb_sigma")]
+    shuffle_targets: bool,
     #[command(flatten)]
     shard: super::ShardArgs,
     #[arg(long)]
@@ -274,6 +279,7 @@ pub fn collect(args: CollectArgs) -> anyhow::Result<()> {
             grasp_probability: args.perturb_grasp_probability,
             detours: args.perturb_detours,
             yaw_sigma_deg: args.perturb_yaw_deg,
+            shuffle_targets: args.shuffle_targets,
         }),
     };
     let owned = options.shard.items(args.episodes).count();

@@ -6,6 +6,7 @@
 //! datasets and for the policy.
 use nalgebra::Isometry3;
 use rand::rngs::StdRng;
+use rand::seq::SliceRandom;
 use rand::{Rng, SeedableRng};
 use serde::{Deserialize, Serialize};
 
@@ -110,6 +111,14 @@ pub struct Perturbation {
     /// (`docs/experiments.md`, session 29: stack_blocks' picks go down 10-30 deg off the faces).
     #[serde(default, skip_serializing_if = "is_zero")]
     pub yaw_sigma_deg: f64,
+    /// Take the task's targets in a random order (drawn from the episode seed, its own stream)
+    /// instead of the expert's (false, the default and what manifests written before it existed
+    /// mean). Only for tasks whose success accepts any order ([`Task::targets_interchangeable`]:
+    /// stack_blocks). Its blocks' visible order (smallest y first) lets a policy pick "the next
+    /// block along y" without reading the colour; in shuffled demonstrations only the colour
+    /// (and not being stacked yet) tells the targets apart (`docs/experiments.md`, session 38).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub shuffle_targets: bool,
 }
 
 fn is_zero(v: &f64) -> bool {
@@ -169,6 +178,8 @@ impl Perturbation {
     pub const MAX_YAW_SIGMA_DEG: f64 = 17.5;
     /// Mixed into the episode seed for the detours' turns' RNG.
     const YAW_SEED_SALT: u64 = 0x7a11_7e5d;
+    /// Mixed into the episode seed for the targets' order ([`Perturbation::shuffle_targets`]).
+    const ORDER_SEED_SALT: u64 = 0x0dde_5a1f;
 
     fn one_detour() -> u32 {
         1
@@ -358,6 +369,20 @@ pub fn run_episode(
         p.validate().map_err(|problem| RolloutError::Perturbation { problem })?;
     }
     let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
+    if let Actor::PerturbedExpert(p) = &actor {
+        if p.shuffle_targets {
+            if !task.targets_interchangeable() {
+                return Err(RolloutError::Perturbation {
+                    problem: format!(
+                        "{}'s targets must be taken in the expert's order (its success depends on it); \
+                         collect it without --shuffle-targets",
+                        task.name()
+                    ),
+                });
+            }
+            state.targets.shuffle(&mut StdRng::seed_from_u64(seed ^ Perturbation::ORDER_SEED_SALT));
+        }
+    }
     let base = world.base_pose();
     let instruction = task.instruction(variation);
     let (planned, budget) = match actor {

@@ -76,6 +76,13 @@ pub trait Task: Send + Sync {
         vec![model_file(self.name())]
     }
 
+    /// Whether the task's success accepts its `targets` in any order (the expert's order is a
+    /// convention, not the task): then a demonstration may take them in another order
+    /// ([`crate::rollout::episode::Perturbation::shuffle_targets`]). Default: false.
+    fn targets_interchangeable(&self) -> bool {
+        false
+    }
+
     /// For tasks whose instruction picks objects by colour, where another variation paints
     /// another scene: the same scene's states with other objects as targets, for the target
     /// probe (the expert of a `right` state goes to an object the instruction also accepts, of

@@ -120,6 +120,11 @@ impl Task for StackBlocks {
         }
     }
 
+    /// Success takes any `count` blocks of the named colour, one per level.
+    fn targets_interchangeable(&self) -> bool {
+        true
+    }
+
     /// 2 since session 24: the named colour's blocks right to left ([`stacking_order`]); 1 took
     /// `block_0, block_1, ...`, an order the cameras cannot see.
     fn expert_version(&self) -> u32 {

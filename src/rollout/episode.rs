@@ -369,19 +369,19 @@ pub fn run_episode(
         p.validate().map_err(|problem| RolloutError::Perturbation { problem })?;
     }
     let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
-    if let Actor::PerturbedExpert(p) = &actor {
-        if p.shuffle_targets {
-            if !task.targets_interchangeable() {
-                return Err(RolloutError::Perturbation {
-                    problem: format!(
-                        "{}'s targets must be taken in the expert's order (its success depends on it); \
-                         collect it without --shuffle-targets",
-                        task.name()
-                    ),
-                });
-            }
-            state.targets.shuffle(&mut StdRng::seed_from_u64(seed ^ Perturbation::ORDER_SEED_SALT));
+    if let Actor::PerturbedExpert(p) = &actor
+        && p.shuffle_targets
+    {
+        if !task.targets_interchangeable() {
+            return Err(RolloutError::Perturbation {
+                problem: format!(
+                    "{}'s targets must be taken in the expert's order (its success depends on it); \
+                     collect it without --shuffle-targets",
+                    task.name()
+                ),
+            });
         }
+        state.targets.shuffle(&mut StdRng::seed_from_u64(seed ^ Perturbation::ORDER_SEED_SALT));
     }
     let base = world.base_pose();
     let instruction = task.instruction(variation);

@@ -244,7 +244,7 @@ pub fn collect(
         return Err(RolloutError::Zero { what: "the attempts per episode" });
     }
     if let Some(p) = &options.perturbation {
-        p.validate().map_err(|problem| RolloutError::Perturbation { problem })?;
+        p.validate_for(task).map_err(|problem| RolloutError::Perturbation { problem })?;
     }
     let actor = || match options.perturbation {
         Some(p) => Actor::PerturbedExpert(p),

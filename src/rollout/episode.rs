@@ -219,6 +219,20 @@ impl Perturbation {
         Ok(())
     }
 
+    /// [`Perturbation::validate`], and whether `task` accepts what it asks of it (a shuffled
+    /// order only where the task's success accepts any order).
+    pub fn validate_for(&self, task: &dyn Task) -> Result<(), String> {
+        self.validate()?;
+        if self.shuffle_targets && !task.targets_interchangeable() {
+            return Err(format!(
+                "{}'s targets must be taken in the expert's order (its success depends on it); \
+                 collect it without --shuffle-targets",
+                task.name()
+            ));
+        }
+        Ok(())
+    }
+
     /// Whether keyframe `k` of `plan` is an approach keyframe.
     pub fn is_approach(plan: &[Keyframe], k: usize) -> bool {
         matches!((plan.get(k), plan.get(k + 1)), (Some(a), Some(b)) if a.position[2] - b.position[2] >= Self::APPROACH_DROP_M)
@@ -366,21 +380,12 @@ pub fn run_episode(
         }
     }
     if let Actor::PerturbedExpert(p) = &actor {
-        p.validate().map_err(|problem| RolloutError::Perturbation { problem })?;
+        p.validate_for(task).map_err(|problem| RolloutError::Perturbation { problem })?;
     }
     let (mut state, mut runner, t0) = begin(task, world, variation, seed)?;
     if let Actor::PerturbedExpert(p) = &actor
         && p.shuffle_targets
     {
-        if !task.targets_interchangeable() {
-            return Err(RolloutError::Perturbation {
-                problem: format!(
-                    "{}'s targets must be taken in the expert's order (its success depends on it); \
-                     collect it without --shuffle-targets",
-                    task.name()
-                ),
-            });
-        }
         state.targets.shuffle(&mut StdRng::seed_from_u64(seed ^ Perturbation::ORDER_SEED_SALT));
     }
     let base = world.base_pose();

@@ -130,6 +130,9 @@ struct ControlReport {
     keyframes: usize,
     keyframes_reached: usize,
     qp_fallbacks: u64,
+    /// Share of the ticks where OSQP ran (on the others no row was active and the cost's
+    /// unconstrained minimum was the QP's solution).
+    qp_share: f64,
     limit_violations: u64,
 }
 
@@ -330,13 +333,17 @@ fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
         keyframes: report.keyframes.len(),
         keyframes_reached: report.keyframes.iter().filter(|k| k.reached).count(),
         qp_fallbacks: report.qp_fallbacks,
+        qp_share: {
+            let stats = runner.controller.osc().stats();
+            stats.qp_solves as f64 / stats.ticks.max(1) as f64
+        },
         limit_violations: report.limit_violations,
     };
     if args.json {
         super::print_json(&out)
     } else {
         println!(
-            "tick: p50 {:.1} us, p99 {:.1} us, max {:.1} us (OSC p99 {:.1}, trajectory p99 {:.2}, kinematics p99 {:.1}); IK median {:.2} ms; {:.1}x real time (sim + control); {}/{} keyframes reached, {} QP fallbacks, {} limit violations",
+            "tick: p50 {:.1} us, p99 {:.1} us, max {:.1} us (OSC p99 {:.1}, trajectory p99 {:.2}, kinematics p99 {:.1}); IK median {:.2} ms; {:.1}x real time (sim + control); {}/{} keyframes reached, OSQP on {:.1} % of ticks, {} QP fallbacks, {} limit violations",
             out.tick_us_p50,
             out.tick_us_p99,
             out.tick_us_max,
@@ -347,6 +354,7 @@ fn control(args: ControlBenchArgs) -> anyhow::Result<()> {
             out.realtime_factor,
             out.keyframes_reached,
             out.keyframes,
+            out.qp_share * 100.0,
             out.qp_fallbacks,
             out.limit_violations
         );

@@ -13,8 +13,12 @@
 //! rated torques and within 1 Nm of the previous tick's (torque rate); joint accelerations
 //! within bounds that keep positions and velocities inside their limits over a short horizon.
 //!
-//! The matrices keep one dense sparsity pattern (the `*_dense` constructors keep explicit
-//! zeros), are updated in place, and the solver is warm-started: nothing allocates per tick.
+//! Most ticks no row is active: the cost's unconstrained minimum -H⁻¹g (a 7x7 Cholesky solve)
+//! meets every row, and since the QP is convex that minimum, with zero slack, is its exact
+//! solution, so OSQP is skipped (counted: [`OscStats::qp_solves`] are the ticks it ran). The
+//! matrices keep one dense sparsity pattern (the `*_dense` constructors keep explicit zeros),
+//! are updated in place, and the solver is warm-started (from that minimum when the previous
+//! tick did not run it): nothing allocates per tick.
 //! If OSQP fails or runs past its time limit, the tick uses a damping torque instead (within
 //! the same torque and rate limits), counted in [`OscStats`]. The output is never NaN.
 use std::time::Duration;
@@ -74,6 +78,9 @@ pub struct OscStats {
     pub iteration_limit: u64,
     pub time_limit: u64,
     pub other: u64,
+    /// Ticks where OSQP ran: the cost's unconstrained minimum left a row (a torque, torque-rate,
+    /// acceleration, velocity or position bound). On the others that minimum is the solution.
+    pub qp_solves: u64,
 }
 
 /// One tick's result.
@@ -124,6 +131,8 @@ pub struct Osc {
     friction_torque: JointVector,
     integral: Vector6<f64>,
     stats: OscStats,
+    /// Whether OSQP ran on the previous tick (its solution is then the warm start).
+    osqp_current: bool,
 }
 
 impl std::fmt::Debug for Osc {
@@ -181,6 +190,7 @@ impl Osc {
             friction_torque: JointVector::zeros(),
             integral: Vector6::zeros(),
             stats: OscStats::default(),
+            osqp_current: false,
         })
     }
 
@@ -197,6 +207,7 @@ impl Osc {
         self.tau_prev = *tau;
         self.friction_torque = JointVector::zeros();
         self.integral = Vector6::zeros();
+        self.osqp_current = false;
     }
 
     /// The torque for this tick. `dynamics` is the model at the measured state (q, q̇);
@@ -238,8 +249,22 @@ impl Osc {
         };
         let ddq_bounds = self.acceleration_bounds(q, dq, &external_acceleration, mass);
         self.write_bounds(&tau_lo, &tau_hi, &offset, &ddq_bounds);
-        let Some(ddq) = self.solve_qp(q, &hessian, &gradient, mass) else {
-            return self.fallback(dq, &tau_lo, &tau_hi, error);
+        let unconstrained = unconstrained_minimum(&hessian, &gradient);
+        let ddq = match unconstrained.filter(|ddq| self.within_rows(ddq, mass)) {
+            // The cost's minimum meets every row, so it is the QP's solution (the QP is convex,
+            // and its slack is zero there): OSQP is not needed this tick.
+            Some(ddq) => {
+                self.osqp_current = false;
+                ddq
+            }
+            None => {
+                let start = if self.osqp_current { None } else { unconstrained };
+                self.osqp_current = true;
+                let Some(ddq) = self.solve_qp(q, &hessian, &gradient, mass, start.as_ref()) else {
+                    return self.fallback(dq, &tau_lo, &tau_hi, error);
+                };
+                ddq
+            }
         };
         let tau = mass * ddq + offset;
         if !tau.iter().all(|v| v.is_finite()) {
@@ -388,8 +413,20 @@ impl Osc {
         }
     }
 
+    /// Whether `ddq` meets every row of the QP (bounds from [`Self::write_bounds`]) with zero
+    /// slack: the torque rows on M q̈ and the acceleration rows on q̈.
+    fn within_rows(&self, ddq: &JointVector, mass: &JointMatrix) -> bool {
+        let torque_rows = mass * ddq;
+        (0..N).all(|i| {
+            (self.lower[i]..=self.upper[i]).contains(&torque_rows[i])
+                && (self.lower[N + i]..=self.upper[N + i]).contains(&ddq[i])
+        })
+    }
+
     /// The QP update and solve: the linear cost, the slack weights, P and A written in place
-    /// (bounds from [`Self::write_bounds`]), then OSQP warm-started. The joint accelerations,
+    /// (bounds from [`Self::write_bounds`]), then OSQP warm-started: from `start` (the cost's
+    /// unconstrained minimum, zero slack and zero duals: where the ticks that did not need OSQP
+    /// left the problem) when given, else from OSQP's last solution. The joint accelerations,
     /// or None if OSQP did not solve (counted by cause in the stats; the caller falls back to
     /// the damping torque).
     fn solve_qp(
@@ -398,7 +435,9 @@ impl Osc {
         hessian: &JointMatrix,
         gradient: &JointVector,
         mass: &JointMatrix,
+        start: Option<&JointVector>,
     ) -> Option<JointVector> {
+        self.stats.qp_solves += 1;
         for i in 0..N {
             self.lin[i] = gradient[i];
         }
@@ -422,6 +461,11 @@ impl Osc {
         }
         self.problem.update_lin_cost(&self.lin);
         self.problem.update_bounds(&self.lower, &self.upper);
+        if let Some(start) = start {
+            let mut x = [0.0; NX];
+            x[..N].copy_from_slice(start.as_slice());
+            self.problem.warm_start(&x, &[0.0; M]);
+        }
 
         match self.problem.solve() {
             Status::Solved(s) | Status::SolvedInaccurate(s) => Some(JointVector::from_column_slice(&s.x()[..N])),
@@ -546,6 +590,13 @@ fn within_cap(lo: f64, hi: f64, cap: f64) -> (f64, f64) {
     }
 }
 
+/// The minimum of the cost 1/2 q̈ᵀHq̈ + gᵀq̈ without the rows: -H⁻¹g (H is positive definite:
+/// `regularization` > 0), or None if the factorisation fails or the result is not finite.
+fn unconstrained_minimum(hessian: &JointMatrix, gradient: &JointVector) -> Option<JointVector> {
+    let ddq = hessian.cholesky()?.solve(&(-gradient));
+    ddq.iter().all(|v| v.is_finite()).then_some(ddq)
+}
+
 /// P's pattern: column j < 7 holds rows 0..=j (H), column j >= 7 holds row j (slack).
 fn p_pattern() -> CscMatrix<'static> {
     let (mut indptr, mut indices) = (vec![0], Vec::new());
@@ -609,7 +660,59 @@ fn write_constraints(data: &mut [f64], mass: &JointMatrix) {
 
 #[cfg(test)]
 mod tests {
-    use super::{UNWIND_HEADROOM, unwind_cap, within_cap};
+    use super::{JointFriction, N, Osc, UNWIND_HEADROOM, unconstrained_minimum, unwind_cap, within_cap};
+    use crate::robot::{JointLimits, JointMatrix, JointVector};
+
+    /// An SPD 7x7 matrix: AᵀA + diag, A fixed.
+    fn spd(scale: f64, diag: f64) -> JointMatrix {
+        let a = JointMatrix::from_fn(|i, j| ((i * 7 + j) as f64 * 0.37).sin() * scale);
+        a.transpose() * a + JointMatrix::identity() * diag
+    }
+
+    fn osc() -> Osc {
+        let config = crate::rollout::stack::load_controller_config(None).expect("controllers/osc.toml");
+        let limits = JointLimits::panda().expect("controllers/panda_limits.toml");
+        let friction = JointFriction { coulomb: JointVector::zeros(), viscous: JointVector::zeros() };
+        Osc::new(config, limits, friction, 1e-3).expect("the QP sets up")
+    }
+
+    /// Where no row is active, the unconstrained minimum is what OSQP finds; where one is, the
+    /// minimum is refused and OSQP's solution meets the row.
+    #[test]
+    fn the_unconstrained_minimum_is_the_qp_solution_exactly_when_no_row_is_active() {
+        let mut osc = osc();
+        let (hessian, mass) = (spd(1.0, 0.5), spd(0.3, 0.2));
+        let gradient = JointVector::from_fn(|i, _| (i as f64 - 3.0) * 0.8);
+        let q = JointLimits::panda().unwrap().mid();
+        let minimum = unconstrained_minimum(&hessian, &gradient).expect("H is positive definite");
+        assert!((hessian * minimum + gradient).norm() < 1e-9, "not the cost's stationary point");
+
+        let wide = (JointVector::repeat(-1e3), JointVector::repeat(1e3));
+        osc.write_bounds(&wide.0, &wide.1, &JointVector::zeros(), &wide);
+        assert!(osc.within_rows(&minimum, &mass));
+        let solved = osc.solve_qp(&q, &hessian, &gradient, &mass, None).expect("OSQP solves");
+        assert!((solved - minimum).norm() <= 1e-3 * minimum.norm(), "OSQP {solved} vs the minimum {minimum}");
+
+        // Cap the first joint's acceleration below the minimum's: that row is active now.
+        let mut hi = wide.1;
+        hi[0] = minimum[0] - 0.5;
+        osc.write_bounds(&wide.0, &wide.1, &JointVector::zeros(), &(wide.0, hi));
+        assert!(!osc.within_rows(&minimum, &mass), "a violated acceleration row was accepted");
+        let solved = osc.solve_qp(&q, &hessian, &gradient, &mass, Some(&minimum)).expect("OSQP solves");
+        assert!((solved - minimum).norm() > 0.1, "the active row changed nothing");
+        // The acceleration rows are soft (slack), but heavily weighted: the row nearly holds.
+        assert!(solved[0] < minimum[0] - 0.4, "OSQP's q̈_1 {} ignores the bound {}", solved[0], hi[0]);
+
+        // A torque row: cap M q̈ on the last joint below the minimum's torque.
+        let torque = mass * minimum;
+        let mut tau_hi = wide.1;
+        tau_hi[N - 1] = torque[N - 1] - 1.0;
+        osc.write_bounds(&wide.0, &tau_hi, &JointVector::zeros(), &wide);
+        assert!(!osc.within_rows(&minimum, &mass), "a violated torque row was accepted");
+        let solved = osc.solve_qp(&q, &hessian, &gradient, &mass, Some(&minimum)).expect("OSQP solves");
+        assert!((mass * solved)[N - 1] <= tau_hi[N - 1] + 1e-3, "the torque row does not hold");
+        assert_eq!(osc.stats().qp_solves, 3);
+    }
 
     /// The speed a joint gains while its torque unwinds from `inertia * a` to zero at `rate`.
     fn unwind_speed(a: f64, inertia: f64, rate: f64) -> f64 {

@@ -71,6 +71,9 @@ struct RealtimeReport {
     keyframes_done: u64,
     limit_violations: u64,
     qp_fallbacks: u64,
+    /// Ticks where OSQP ran; on the others no QP row was active and the cost's unconstrained
+    /// minimum was the QP's exact solution.
+    qp_solves: u64,
     dropped_records: u64,
     stop: flowram::runtime::control::StopReason,
     wall_s: f64,
@@ -202,6 +205,7 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
         keyframes_done: s.keyframes_done,
         limit_violations: s.monitor.violations,
         qp_fallbacks: s.qp_fallbacks,
+        qp_solves: s.qp_solves,
         dropped_records: s.dropped_records,
         stop: s.stop,
         wall_s,
@@ -224,11 +228,12 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
         println!("MuJoCo step us: p50 {:.1}, p99 {:.1}, p99.99 {:.1}, max {:.1}", m.p50, m.p99, m.p9999, m.max);
         println!("wake latency us: p50 {:.1}, p99 {:.1}, p99.99 {:.1}, max {:.1}", w.p50, w.p99, w.p9999, w.max);
         println!(
-            "allocations in ticks: {}; SCHED_FIFO: {}; whole process on one core: {}; limit violations {}, QP fallbacks {}",
+            "allocations in ticks: {}; SCHED_FIFO: {}; whole process on one core: {}; limit violations {}, OSQP ran on {} ticks, QP fallbacks {}",
             report.allocations_in_tick.map_or("not counted".into(), |n| n.to_string()),
             report.rt_scheduling,
             report.one_core.map_or("no".into(), |c| format!("core {c}")),
             report.limit_violations,
+            report.qp_solves,
             report.qp_fallbacks
         );
         for note in &report.rt_notes {
@@ -294,8 +299,14 @@ pub fn faults(args: FaultsBenchArgs) -> anyhow::Result<()> {
         r.panics
     );
     println!(
-        "holds: {} keyframes refused, {} runs ended by the watchdog, {} motions stopped by the collision reflex; keyframes reached {}/{} commanded; QP fallback ticks {}",
-        r.holds_rejected, r.holds_watchdog, r.holds_reflex, r.keyframes_reached, r.keyframes_commanded, r.qp_fallbacks
+        "holds: {} keyframes refused, {} runs ended by the watchdog, {} motions stopped by the collision reflex; keyframes reached {}/{} commanded; OSQP ran on {} ticks, QP fallback ticks {}",
+        r.holds_rejected,
+        r.holds_watchdog,
+        r.holds_reflex,
+        r.keyframes_reached,
+        r.keyframes_commanded,
+        r.qp_solves,
+        r.qp_fallbacks
     );
     println!("runs ended: {}", r.stops.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "));
     Ok(())

@@ -56,6 +56,8 @@ pub struct FaultReport {
     pub keyframes_reached: u64,
     /// Ticks where the QP failed or ran out of time and the damping torque was used.
     pub qp_fallbacks: u64,
+    /// Ticks where OSQP ran (a QP row was active: contacts, limits, re-targeting).
+    pub qp_solves: u64,
     pub ticks: u64,
     /// How the runs ended.
     pub stops: BTreeMap<&'static str, u64>,
@@ -249,6 +251,7 @@ fn fault_run(seed: u64, config: Option<&std::path::Path>, report: &mut FaultRepo
     report.velocity_violations += m.velocity_violations;
     report.non_finite_torques += m.non_finite_torques;
     report.qp_fallbacks += out.summary.qp_fallbacks;
+    report.qp_solves += out.summary.qp_solves;
     report.ticks += out.summary.ticks;
     let c = *out.control.controller.osc().config();
     for e in &out.events {

@@ -80,6 +80,8 @@ pub struct ControlSummary {
     pub dropped_records: u64,
     pub monitor: LimitMonitor,
     pub qp_fallbacks: u64,
+    /// Ticks where OSQP ran (on the others no QP row was active: [`crate::control::osc`]).
+    pub qp_solves: u64,
     pub final_state: RobotState,
 }
 
@@ -284,6 +286,7 @@ impl<B: RobotBackend> ControlLoop<B> {
             dropped_records: s.dropped,
             monitor: self.monitor,
             qp_fallbacks: self.controller.osc().stats().fallbacks,
+            qp_solves: self.controller.osc().stats().qp_solves,
             final_state: state,
         };
         (self, summary)

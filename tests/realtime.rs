@@ -46,13 +46,22 @@ fn control_ticks_do_not_allocate() {
                 q[0] -= 0.2;
                 runner.controller.set_goal(&q); // a re-plan mid-motion, too
             }
+            if ticks == 1500 {
+                // a raw step of the reference: the torque-rate rows become active, so OSQP runs
+                // (on the smooth motion before it the cost's minimum meets every row)
+                let mut q = state.q;
+                q[3] += 0.3;
+                runner.controller.jump_reference(&q);
+            }
             // from the second tick on (the first sizes the solver's workspaces)
             let _scope = (ticks > 1).then(TickScope::enter);
             let command = runner.controller.tick(state);
             if ticks == 2000 { Cycle::Finish(command) } else { Cycle::Continue(command) }
         })
         .unwrap();
-    assert!(runner.controller.osc().stats().ticks >= 2000);
+    let stats = runner.controller.osc().stats();
+    assert!(stats.ticks >= 2000);
+    assert!(stats.qp_solves > 10, "OSQP ran on {} ticks: its path is not under the count", stats.qp_solves);
     assert_eq!(tick_allocations() - before, 0, "heap allocations inside control ticks");
 }
 

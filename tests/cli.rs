@@ -295,6 +295,10 @@ fn runtime_benchmarks_print_their_figures_and_refuse_bad_arguments() {
         }
     }
     assert!(rt["deadline_misses"].as_u64().is_some() && rt["policy_inferences"] == 0);
+    let causes = &rt["deadline_miss_causes"];
+    let by_cause: u64 = ["overrun", "wake", "backend", "compute"].iter().map(|k| causes[k].as_u64().unwrap()).sum();
+    assert_eq!(Some(by_cause), rt["deadline_misses"].as_u64(), "every miss has one cause: {rt}");
+    assert!(rt["host_steal_s"].as_f64().is_some_and(|s| s >= 0.0), "/proc/stat is readable here: {rt}");
     assert!(rt["one_core"].is_null(), "{rt}");
     let out = common::flowram()
         .args(["bench", "realtime", "--ticks", "1500", "--no-rt", "--one-core", "--json"])

@@ -17,7 +17,7 @@ use flowram::rollout::collection::demonstration;
 use flowram::rollout::learned::DEFAULT_CAMERAS;
 use flowram::rollout::stack::{load_controller_config, realtime_stack};
 use flowram::runtime::alloc_count;
-use flowram::runtime::control::{ControlSettings, Pacing};
+use flowram::runtime::control::{ControlSettings, MissCauses, Pacing};
 use flowram::runtime::messages::{Answer, Request};
 use flowram::runtime::pacing::{share_one_core, start_background_pool};
 use flowram::runtime::planner::WorkspaceBox;
@@ -56,6 +56,12 @@ pub struct RealtimeBenchArgs {
 struct RealtimeReport {
     ticks: u64,
     deadline_misses: u64,
+    /// Each miss by what took its time: the previous tick still running at its release
+    /// (`overrun`), a late wake-up, the MuJoCo step, or the tick's compute.
+    deadline_miss_causes: MissCauses,
+    /// CPU time the hypervisor gave to others while this guest's vCPUs wanted to run, over the
+    /// run, summed over the vCPUs (s; `steal` of /proc/stat; null where unreadable).
+    host_steal_s: Option<f64>,
     /// The tick without the backend: hand-offs, keyframe execution, controller, limit check.
     compute_us: Percentiles,
     /// The backend's cycle: one MuJoCo step of the Panda scene.
@@ -182,10 +188,12 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
     };
     let counting = alloc_count::is_installed();
     let allocations_before = alloc_count::tick_allocations();
+    let steal_before = host_steal_s();
     let t0 = Instant::now();
     let out =
         run_session(control, planner, &mut source, SessionSettings { realtime_scheduling: rt, ..Default::default() })?;
     let wall_s = t0.elapsed().as_secs_f64();
+    let host_steal_s = steal_before.zip(host_steal_s()).map(|(before, after)| after - before);
     if source.errors > 0 {
         bail!("{} policy inferences failed", source.errors);
     }
@@ -193,6 +201,8 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
     let report = RealtimeReport {
         ticks: s.ticks,
         deadline_misses: s.deadline_misses,
+        deadline_miss_causes: s.miss_causes,
+        host_steal_s,
         compute_us: out.compute,
         sim_step_us: out.backend,
         wake_latency_us: out.wake_latency,
@@ -222,6 +232,15 @@ pub fn realtime(args: RealtimeBenchArgs) -> anyhow::Result<()> {
             report.waited_on_policy_ticks,
             report.policy_inferences,
             report.keyframes_done
+        );
+        let causes = &report.deadline_miss_causes;
+        println!(
+            "misses by cause: {} after an overrun of the previous tick, {} woke late, {} MuJoCo step, {} compute; host steal {}",
+            causes.overrun,
+            causes.wake,
+            causes.backend,
+            causes.compute,
+            report.host_steal_s.map_or("not readable".into(), |t| format!("{t:.2} s"))
         );
         let m = &report.sim_step_us;
         println!("tick compute us: p50 {:.1}, p99 {:.1}, p99.99 {:.1}, max {:.1}", c.p50, c.p99, c.p9999, c.max);
@@ -310,4 +329,15 @@ pub fn faults(args: FaultsBenchArgs) -> anyhow::Result<()> {
     );
     println!("runs ended: {}", r.stops.iter().map(|(k, n)| format!("{k} {n}")).collect::<Vec<_>>().join(", "));
     Ok(())
+}
+
+/// Steal time of all vCPUs since boot (s): the `steal` column of /proc/stat's `cpu` line, in
+/// clock ticks. None where the file or the column is missing (not Linux, or an old kernel).
+fn host_steal_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/stat").ok()?;
+    let line = stat.lines().find(|l| l.starts_with("cpu "))?;
+    let steal: f64 = line.split_whitespace().nth(8)?.parse().ok()?;
+    // SAFETY: sysconf has no preconditions.
+    let hz = unsafe { libc::sysconf(libc::_SC_CLK_TCK) };
+    (hz > 0).then(|| steal / hz as f64)
 }

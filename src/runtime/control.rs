@@ -72,6 +72,8 @@ pub struct ControlSummary {
     pub stop: StopReason,
     /// Ticks whose compute ended after their deadline (release + period).
     pub deadline_misses: u64,
+    /// The same misses by what took the time.
+    pub miss_causes: MissCauses,
     /// Ticks that blocked waiting for a plan.
     pub waited_ticks: u64,
     pub keyframes_done: u64,
@@ -83,6 +85,41 @@ pub struct ControlSummary {
     /// Ticks where OSQP ran (on the others no QP row was active: [`crate::control::osc`]).
     pub qp_solves: u64,
     pub final_state: RobotState,
+}
+
+/// Deadline misses by what took the tick's time (wall-clock pacing only). Each miss counts
+/// once: against `overrun` if the tick could not start on time because the previous one was
+/// still running at its release, otherwise against the largest of its three parts.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
+pub struct MissCauses {
+    /// The previous tick ran past this one's release (a stall longer than a period makes the
+    /// ticks after it miss while the loop catches up).
+    pub overrun: u64,
+    /// The thread woke late after its release: the host did not run it in time.
+    pub wake: u64,
+    /// The backend's cycle (one MuJoCo step in simulation) took the most time.
+    pub backend: u64,
+    /// The tick's compute (hand-offs, keyframe execution, controller, limit check) took the most.
+    pub compute: u64,
+}
+
+impl MissCauses {
+    pub fn total(&self) -> u64 {
+        self.overrun + self.wake + self.backend + self.compute
+    }
+
+    fn count(&mut self, overrun: bool, wake_ns: u64, compute_ns: u64, backend_ns: u64) {
+        let cause = if overrun {
+            &mut self.overrun
+        } else if wake_ns >= compute_ns && wake_ns >= backend_ns {
+            &mut self.wake
+        } else if backend_ns >= compute_ns {
+            &mut self.backend
+        } else {
+            &mut self.compute
+        };
+        *cause += 1;
+    }
 }
 
 /// The control thread's ends of the hand-offs.
@@ -130,6 +167,7 @@ impl<B: RobotBackend> ControlLoop<B> {
         let mut next_id = 0u64;
         let mut s = Summary::default();
         let mut tick = 0u64;
+        let mut previous_done_ns = 0u64;
         let stop = loop {
             if tick >= self.settings.max_ticks {
                 break StopReason::TickLimit;
@@ -229,7 +267,10 @@ impl<B: RobotBackend> ControlLoop<B> {
                 && done_ns > pacer.release_ns(tick) + period_ns
             {
                 s.deadline_misses += 1;
+                let overrun = previous_done_ns > pacer.release_ns(tick);
+                s.miss_causes.count(overrun, wake_late_ns, computed_ns - started, done_ns - computed_ns);
             }
+            previous_done_ns = done_ns;
             s.waited_ticks += u64::from(waited);
             let record = TickRecord {
                 tick,
@@ -280,6 +321,7 @@ impl<B: RobotBackend> ControlLoop<B> {
             ticks: tick,
             stop,
             deadline_misses: s.deadline_misses,
+            miss_causes: s.miss_causes,
             waited_ticks: s.waited_ticks,
             keyframes_done: s.keyframes_done,
             rejections: s.rejections,
@@ -296,6 +338,7 @@ impl<B: RobotBackend> ControlLoop<B> {
 #[derive(Debug, Default)]
 struct Summary {
     deadline_misses: u64,
+    miss_causes: MissCauses,
     waited_ticks: u64,
     keyframes_done: u64,
     rejections: u64,
@@ -327,5 +370,23 @@ fn wait_for_plan(plans: &mut rtrb::Consumer<PlanMessage>, timeout_s: f64) -> Opt
             return None;
         }
         std::thread::yield_now();
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::MissCauses;
+
+    #[test]
+    fn each_miss_goes_to_one_cause_overrun_first_then_the_largest_part() {
+        let mut causes = MissCauses::default();
+        // A stall inherited from the previous tick counts as an overrun even where the wake-up
+        // (the inherited lateness) is the largest part.
+        causes.count(true, 2_000_000, 30_000, 60_000);
+        causes.count(false, 1_200_000, 30_000, 60_000);
+        causes.count(false, 10_000, 30_000, 1_100_000);
+        causes.count(false, 10_000, 990_000, 60_000);
+        assert_eq!(causes, MissCauses { overrun: 1, wake: 1, backend: 1, compute: 1 });
+        assert_eq!(causes.total(), 4);
     }
 }

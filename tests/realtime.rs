@@ -171,6 +171,31 @@ fn a_stalled_policy_never_delays_a_tick_and_the_arm_holds() {
 }
 
 #[test]
+fn a_stall_inside_a_tick_is_a_compute_miss_and_the_ticks_that_catch_up_are_overruns() {
+    let (world, tcp) = home();
+    let (mut control, planner) = realtime_stack(
+        world,
+        OscConfig::default_profile().unwrap(),
+        settings(Pacing::WallClock, 400, None),
+        WorkspaceBox::TABLE,
+    )
+    .unwrap();
+    // The first request's tap (inside tick 0's compute) stalls the tick for 8 periods: tick 0
+    // misses by its compute, and the ticks released during the stall start late.
+    control.tap = Some(Box::new(|_, request: &Request| {
+        if request.id == 0 {
+            std::thread::sleep(Duration::from_millis(8));
+        }
+    }));
+    let mut source = Script { keyframes: moves(&tcp), delay: Duration::ZERO, next: 0 };
+    let out = run_session(control, planner, &mut source, SessionSettings::default()).unwrap();
+    let (s, causes) = (&out.summary, out.summary.miss_causes);
+    assert_eq!(causes.total(), s.deadline_misses, "every miss has one cause: {causes:?}");
+    assert!(causes.compute >= 1, "the stalled tick was not counted as a compute miss: {causes:?}");
+    assert!(causes.overrun >= 5, "the ticks released during the 8 ms stall were not overruns: {causes:?}");
+}
+
+#[test]
 fn garbage_keyframes_are_rejected_and_the_arm_holds() {
     let (world, tcp) = home();
     let q0 = world.arm_state().q;

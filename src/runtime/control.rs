@@ -88,8 +88,9 @@ pub struct ControlSummary {
 }
 
 /// Deadline misses by what took the tick's time (wall-clock pacing only). Each miss counts
-/// once: against `overrun` if the tick could not start on time because the previous one was
-/// still running at its release, otherwise against the largest of its three parts.
+/// once: against `overrun` if the tick could not start on time because the loop came back to
+/// wait for its release only after that release (the previous iteration was still running),
+/// otherwise against the largest of its three parts.
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, serde::Serialize)]
 pub struct MissCauses {
     /// The previous tick ran past this one's release (a stall longer than a period makes the
@@ -108,8 +109,10 @@ impl MissCauses {
         self.overrun + self.wake + self.backend + self.compute
     }
 
-    fn count(&mut self, overrun: bool, wake_ns: u64, compute_ns: u64, backend_ns: u64) {
-        let cause = if overrun {
+    /// Counts one miss of a tick released at `release_ns` whose iteration reached the wait for
+    /// that release at `arrived_ns` (both on the monotonic clock).
+    fn count(&mut self, release_ns: u64, arrived_ns: u64, wake_ns: u64, compute_ns: u64, backend_ns: u64) {
+        let cause = if arrived_ns > release_ns {
             &mut self.overrun
         } else if wake_ns >= compute_ns && wake_ns >= backend_ns {
             &mut self.wake
@@ -167,7 +170,6 @@ impl<B: RobotBackend> ControlLoop<B> {
         let mut next_id = 0u64;
         let mut s = Summary::default();
         let mut tick = 0u64;
-        let mut previous_done_ns = 0u64;
         let stop = loop {
             if tick >= self.settings.max_ticks {
                 break StopReason::TickLimit;
@@ -175,6 +177,8 @@ impl<B: RobotBackend> ControlLoop<B> {
             if ports.stop.load(std::sync::atomic::Ordering::Relaxed) {
                 break StopReason::Stopped;
             }
+            // When this iteration came to wait for its release: after it, the previous one overran.
+            let arrived_ns = now_ns();
             let wake_late_ns = match self.settings.pacing {
                 Pacing::WallClock => pacer.wait_for(tick),
                 Pacing::SimulatedLatency { .. } => 0,
@@ -267,10 +271,9 @@ impl<B: RobotBackend> ControlLoop<B> {
                 && done_ns > pacer.release_ns(tick) + period_ns
             {
                 s.deadline_misses += 1;
-                let overrun = previous_done_ns > pacer.release_ns(tick);
-                s.miss_causes.count(overrun, wake_late_ns, computed_ns - started, done_ns - computed_ns);
+                let release = pacer.release_ns(tick);
+                s.miss_causes.count(release, arrived_ns, wake_late_ns, computed_ns - started, done_ns - computed_ns);
             }
-            previous_done_ns = done_ns;
             s.waited_ticks += u64::from(waited);
             let record = TickRecord {
                 tick,
@@ -380,12 +383,14 @@ mod tests {
     #[test]
     fn each_miss_goes_to_one_cause_overrun_first_then_the_largest_part() {
         let mut causes = MissCauses::default();
-        // A stall inherited from the previous tick counts as an overrun even where the wake-up
-        // (the inherited lateness) is the largest part.
-        causes.count(true, 2_000_000, 30_000, 60_000);
-        causes.count(false, 1_200_000, 30_000, 60_000);
-        causes.count(false, 10_000, 30_000, 1_100_000);
-        causes.count(false, 10_000, 990_000, 60_000);
+        let release = 5_000_000;
+        // An iteration that reached its wait after the release inherits a stall: an overrun, even
+        // where the lateness it inherited (its wake) is the largest part.
+        causes.count(release, release + 1, 2_000_000, 30_000, 60_000);
+        // Reached in time: the largest part.
+        causes.count(release, release - 200_000, 1_200_000, 30_000, 60_000);
+        causes.count(release, release - 200_000, 10_000, 30_000, 1_100_000);
+        causes.count(release, release, 10_000, 990_000, 60_000);
         assert_eq!(causes, MissCauses { overrun: 1, wake: 1, backend: 1, compute: 1 });
         assert_eq!(causes.total(), 4);
     }

@@ -1241,6 +1241,46 @@ fn the_instructions_guidance_is_as_trained_at_1_the_null_pointer_at_0_and_is_val
 }
 
 #[test]
+fn the_grounding_loss_needs_the_position_pointer_changes_only_the_total_and_is_learnt() {
+    let config = relational_config();
+    let mut grounded = config.clone();
+    grounded.flow.grounding_weight = 1.0;
+    grounded.validate().unwrap();
+    // Not serialised when off or at its default radius: configs written before the option are unchanged.
+    assert!(serde_json::to_value(&config).unwrap()["flow"].get("grounding_weight").is_none());
+    assert!(serde_json::to_value(&grounded).unwrap()["flow"].get("grounding_radius").is_none());
+    assert_eq!(serde_json::to_value(&grounded).unwrap()["flow"]["grounding_weight"], 1.0);
+    let mut no_pointer = tiny_config();
+    (no_pointer.model.position_pointer, no_pointer.flow.pointer_weight) = (false, 0.0);
+    no_pointer.flow.grounding_weight = 1.0;
+    let err = no_pointer.validate().unwrap_err().to_string();
+    assert!(err.contains("flow.grounding_weight") && err.contains("position_pointer"), "{err}");
+    for r in [0.0, -0.01, f64::NAN] {
+        let mut bad = grounded.clone();
+        bad.flow.grounding_radius = r;
+        assert!(bad.validate().unwrap_err().to_string().contains("flow.grounding_radius"));
+    }
+    // The same draws and weights: only the total moves, from the first step on.
+    let (plain, with) = (first_step(&config), first_step(&grounded));
+    assert!(with.total.is_finite(), "{with:?}");
+    assert_eq!((plain.cfm, plain.bce), (with.cfm, with.bce));
+    assert_ne!(plain.total, with.total);
+    // Trained on the grounding loss alone, the instruction query learns to separate the tokens
+    // under the episode's later keyframes from the rest: the loss (ln 2 for a query that does
+    // not separate them) falls well below it.
+    let mut alone = grounded.clone();
+    (alone.flow.cfm_weight, alone.flow.open_weight, alone.flow.pointer_weight, alone.flow.goal_weight) =
+        (0.0, 0.0, 0.0, 0.0);
+    alone.validate().unwrap();
+    let mut data = TrainingData::from_episodes(vec![demonstration().clone()]).unwrap();
+    let mut text = text();
+    let mut trainer = Trainer::new(&alone).unwrap();
+    let losses: Vec<f64> = (0..80).map(|_| trainer.train_step(&mut data, &mut text).unwrap().total).collect();
+    let (first, last) = (losses[0], losses[70..].iter().sum::<f64>() / 10.0);
+    assert!(first > 0.3 && last < 0.5 * first, "grounding loss {first} -> {last}");
+}
+
+#[test]
 fn instruction_dropout_trains_on_the_null_instruction_from_its_own_stream_and_is_validated() {
     let config = tiny_config();
     let mut dropped = config.clone();

@@ -305,6 +305,18 @@ pub struct FlowConfig {
     /// stream, so the other draws of a step are unchanged. 0 (the paper): never.
     #[serde(default, skip_serializing_if = "is_zero")]
     pub instruction_dropout: f64,
+    /// Weight of the instruction-grounding loss (`model.position_pointer`; training only): a
+    /// class-balanced logistic loss on the scores of the position pointer's instruction query
+    /// against every semantic token's key, labelled 1 on the tokens within `grounding_radius`
+    /// (horizontally) of any keyframe of the episode from the sample's on: every object the
+    /// instruction still names (all the blocks of the named colour still to stack, the buttons
+    /// still to press), not only the next one, which is all the pointer's own loss supervises.
+    /// It adds no weight and changes no inference. 0 (the paper has no pointer): none.
+    #[serde(default, skip_serializing_if = "is_zero")]
+    pub grounding_weight: f64,
+    /// Metres; the horizontal radius of `grounding_weight`'s positive tokens.
+    #[serde(default = "grounding_radius", skip_serializing_if = "is_grounding_radius")]
+    pub grounding_radius: f64,
 }
 
 /// `flow.goal_keyframe`: which keyframe the instruction pointer's loss points at.
@@ -348,6 +360,14 @@ pub enum PointerTarget {
 
 fn pointer_sigma() -> f64 {
     0.02
+}
+
+fn grounding_radius() -> f64 {
+    0.03
+}
+
+fn is_grounding_radius(r: &f64) -> bool {
+    *r == grounding_radius()
 }
 
 /// `flow.pointer_sharpening`: the position pointer's temperature over the first Euler steps.
@@ -723,6 +743,13 @@ impl PolicyConfig {
                 "\"under\"".to_string(),
             );
         }
+        if self.flow.grounding_weight > 0.0 && !self.model.position_pointer {
+            return bad(
+                "flow.grounding_weight",
+                "0 unless model.position_pointer = true (it scores the pointer's instruction query against its keys)",
+                self.flow.grounding_weight.to_string(),
+            );
+        }
         if self.flow.goal_weight > 0.0 && !self.model.instruction_pointer {
             return bad(
                 "flow.goal_weight",
@@ -739,6 +766,8 @@ impl PolicyConfig {
             ("flow.pointer_weight", self.flow.pointer_weight, self.flow.pointer_weight >= 0.0),
             ("flow.pointer_sigma", self.flow.pointer_sigma, self.flow.pointer_sigma > 0.0),
             ("flow.goal_weight", self.flow.goal_weight, self.flow.goal_weight >= 0.0),
+            ("flow.grounding_weight", self.flow.grounding_weight, self.flow.grounding_weight >= 0.0),
+            ("flow.grounding_radius", self.flow.grounding_radius, self.flow.grounding_radius > 0.0),
             ("train.learning_rate", t.learning_rate, t.learning_rate > 0.0),
             ("train.weight_decay", t.weight_decay, t.weight_decay >= 0.0),
             ("train.min_learning_rate", t.min_learning_rate, (0.0..=t.learning_rate).contains(&t.min_learning_rate)),

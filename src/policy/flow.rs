@@ -281,6 +281,55 @@ pub fn pointer_loss(
     Ok(soft.mul(log_weights)?.sum(1)?.neg()?.mean_all()?)
 }
 
+/// The labels of the instruction-grounding loss (`flow.grounding_weight`), one row of candidates:
+/// 1 on the candidates (normalised positions) within `radius` metres horizontally of any of
+/// the `later` positions (normalised: the episode's keyframes from the sample's on), else 0.
+/// `half_extent`: metres per normalised unit per axis (z is not read).
+pub fn grounding_labels(candidates: &[[f32; 3]], later: &[[f32; 3]], half_extent: [f32; 3], radius: f64) -> Vec<f32> {
+    let r2 = (radius * radius) as f32;
+    candidates
+        .iter()
+        .map(|c| {
+            let near = later.iter().any(|p| {
+                let (dx, dy) = ((c[0] - p[0]) * half_extent[0], (c[1] - p[1]) * half_extent[1]);
+                dx * dx + dy * dy <= r2
+            });
+            if near { 1.0 } else { 0.0 }
+        })
+        .collect()
+}
+
+/// The instruction-grounding loss (`flow.grounding_weight`): logistic losses of `scores`
+/// [B, N] against `labels` [B, N] (1: a token the instruction still names), the positives' and
+/// the negatives' each averaged over their own count in the batch and the two halved, so that
+/// the few tokens on the named objects weigh as much as the many others. A class absent from
+/// the batch contributes nothing.
+pub fn grounding_loss(scores: &Tensor, labels: &Tensor) -> Result<Tensor> {
+    if scores.rank() != 2 || scores.dims() != labels.dims() {
+        return Err(PolicyError::Invalid(format!(
+            "grounding_loss: scores {:?} and labels {:?} must both be [B, N]",
+            scores.dims(),
+            labels.dims()
+        )));
+    }
+    let labels = labels.to_dtype(scores.dtype())?;
+    let negatives = labels.affine(-1.0, 1.0)?;
+    let positives_n = labels.sum_all()?.to_scalar::<f32>()?;
+    let negatives_n = negatives.sum_all()?.to_scalar::<f32>()?;
+    // softplus(x) = relu(x) + log(1 + e^-|x|): the loss of a positive is softplus(-s), of a negative softplus(s)
+    let tail = scores.abs()?.neg()?.exp()?.affine(1.0, 1.0)?.log()?;
+    let on_positive = scores.neg()?.relu()?.add(&tail)?;
+    let on_negative = scores.relu()?.add(&tail)?;
+    let mut loss = Tensor::zeros((), scores.dtype(), scores.device())?;
+    if positives_n > 0.0 {
+        loss = loss.add(&on_positive.mul(&labels)?.sum_all()?.affine(0.5 / f64::from(positives_n), 0.0)?)?;
+    }
+    if negatives_n > 0.0 {
+        loss = loss.add(&on_negative.mul(&negatives)?.sum_all()?.affine(0.5 / f64::from(negatives_n), 0.0)?)?;
+    }
+    Ok(loss)
+}
+
 /// The position pointer's target under `flow.pointer_target = "relational"`: the point p* whose
 /// relation lands on the keyframe position `target` [B, 3], p* + beta (p* - g) = target, so
 /// p* = (target + beta g) / (1 + beta), with the model's `beta` [B, 1] and instruction-pointer
@@ -370,6 +419,36 @@ mod tests {
             loss(1, horizontal)
         );
         assert!([0, 1, 2].iter().all(|&i| loss(i, horizontal).is_finite()));
+    }
+
+    #[test]
+    fn grounding_labels_mark_the_tokens_under_every_later_keyframe_and_only_those() {
+        // 0.3 m per normalised unit: candidates 0, 1.5, 6 and 30 cm (in x) from the first later
+        // keyframe, and one 50 cm above the second (horizontal distance 0).
+        let candidates = [[0.0f32, 0.0, 0.0], [0.05, 0.0, 0.0], [0.2, 0.0, 0.0], [1.0, 0.0, 0.0], [-0.5, 0.5, -0.9]];
+        let later = [[0.0f32, 0.0, 0.3], [-0.5, 0.5, 0.8]];
+        assert_eq!(grounding_labels(&candidates, &later, [0.3; 3], 0.03), vec![1.0, 1.0, 0.0, 0.0, 1.0]);
+        assert_eq!(grounding_labels(&candidates, &[], [0.3; 3], 0.03), vec![0.0; 5]);
+    }
+
+    #[test]
+    fn the_grounding_loss_balances_the_classes_and_falls_as_the_scores_separate_them() {
+        // One positive among four tokens.
+        let labels = t2(&[1.0, 0.0, 0.0, 0.0], 1);
+        let loss = |s: [f32; 4]| grounding_loss(&t2(&s, 1), &labels).unwrap().to_scalar::<f32>().unwrap();
+        // All scores 0: each class's mean loss is ln 2, halved and summed: ln 2.
+        assert!((loss([0.0; 4]) - std::f32::consts::LN_2).abs() < 1e-6, "{}", loss([0.0; 4]));
+        // The positive up and the negatives down lowers it; the reverse raises it.
+        assert!(loss([4.0, -4.0, -4.0, -4.0]) < 0.02);
+        assert!(loss([-4.0, 4.0, 4.0, 4.0]) > 3.9);
+        // Balanced: the one positive at -4 costs as much as the three negatives at +4 together.
+        let (pos, neg) = (loss([-4.0, -4.0, -4.0, -4.0]), loss([4.0, 4.0, 4.0, 4.0]));
+        assert!((pos - neg).abs() < 1e-5, "{pos} {neg}");
+        // A batch without positives: only the negatives' half, and finite at large scores.
+        let none = grounding_loss(&t2(&[50.0, -50.0], 1), &t2(&[0.0, 0.0], 1)).unwrap().to_scalar::<f32>().unwrap();
+        assert!((none - 12.5).abs() < 1e-3, "{none}");
+        let wrong = grounding_loss(&t2(&[0.0; 4], 1), &t2(&[0.0; 2], 1));
+        assert!(wrong.unwrap_err().to_string().contains("grounding_loss"));
     }
 
     #[test]

@@ -310,6 +310,10 @@ pub struct Velocity {
     /// With `model.relational_pointer`: beta [B, 1] and the instruction pointer's position g
     /// [B, 3] of the position p + beta (p - g) + offset (for `flow.pointer_target`).
     pub relation: Option<(Tensor, Tensor)>,
+    /// With `flow.grounding_weight`, from the training forward only: the scores of the position
+    /// pointer's instruction query against the semantic tokens' keys, one row per observation
+    /// [B_obs, N1] (the candidates are the prefix inputs' `semantic_xyz`).
+    pub grounding: Option<Tensor>,
 }
 
 /// The prefix of a batch: tokens [B, Lt + N1 (+ 1 pointer), C], the condition [B, C], the
@@ -891,7 +895,7 @@ impl FlowRam {
         }
         let velocity = Tensor::cat(&[position, rotation], 1)?;
         let open_logit = self.open_head.forward(last)?.squeeze(1)?;
-        Ok(Velocity { velocity, open_logit, pointer: attention, goal: None, relation: relation_used })
+        Ok(Velocity { velocity, open_logit, pointer: attention, goal: None, relation: relation_used, grounding: None })
     }
 
     /// Training forward, differentiable: the whole sequence in one pass. The suffix may hold K
@@ -903,6 +907,12 @@ impl FlowRam {
         let Prefix { tokens: mut p_tokens, condition: mut p_cond, mut memory, goal, mut language } =
             self.prefix_tokens(&features, prefix)?;
         let (goal_attention, mut goal) = goal.unzip();
+        let grounding = match &memory {
+            Some(m) if self.config.flow.grounding_weight > 0.0 => {
+                Some(attention_scores(&m.query.unsqueeze(1)?, &m.keys)?.squeeze(1)?)
+            }
+            _ => None,
+        };
         let (observations, samples) = (p_cond.dim(0)?, suffix.action.dim(0)?);
         if samples != observations {
             if observations == 0 || !samples.is_multiple_of(observations) {
@@ -928,6 +938,7 @@ impl FlowRam {
         let readout = self.read_instruction(&h.narrow(1, lp + ls - 1, 1)?.squeeze(1)?, language.as_ref())?;
         let mut velocity = self.heads(&readout, pointer, goal.as_ref(), 1.0, None, None)?;
         velocity.goal = goal_attention;
+        velocity.grounding = grounding;
         Ok(velocity)
     }
 

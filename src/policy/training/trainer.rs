@@ -24,7 +24,8 @@ use crate::policy::checkpoint::store::CheckpointStore;
 use crate::policy::config::{GoalKeyframe, GoalTarget, PointerTarget, PolicyConfig};
 use crate::policy::error::{PolicyError, Result};
 use crate::policy::flow::{
-    LossWeights, flow_matching_loss, flow_training_sample, pointer_loss, relational_pointer_target,
+    LossWeights, flow_matching_loss, flow_training_sample, grounding_labels, grounding_loss, pointer_loss,
+    relational_pointer_target,
 };
 use crate::policy::inputs::{Augmentation, InstructionInputs, PreparedObservation, prefix_inputs, suffix_inputs};
 use crate::policy::network::init::seeded_var_builder;
@@ -101,6 +102,10 @@ impl Trainer {
         // The goal keyframe's position (`flow.goal_keyframe`), shifted with its observation (`flow.goal_weight`).
         let mut goals = Vec::with_capacity(b * 3);
         let mut opens = Vec::with_capacity(b * k);
+        // The positions of the episode's keyframes from the sample's on, shifted with its
+        // observation (`flow.grounding_weight`).
+        let grounding = config.flow.grounding_weight > 0.0;
+        let mut later: Vec<Vec<[f32; 3]>> = Vec::with_capacity(if grounding { b } else { 0 });
         let (lo, hi) = (ws.min(), ws.max());
         for _ in 0..b {
             let s = data.draw(&mut draw_rng, &t_cfg.task_weights);
@@ -127,6 +132,15 @@ impl Trainer {
                 };
                 let goal = Observation::episode_action(episode, goal_k).to_action(ws)?;
                 goals.extend((0..3).map(|a| goal[a] + shift[a]));
+            }
+            if grounding {
+                let positions = (s.k..episode.keyframes())
+                    .map(|j| {
+                        let a = Observation::episode_action(episode, j).to_action(ws)?;
+                        Ok(std::array::from_fn(|i| a[i] + shift[i]))
+                    })
+                    .collect::<Result<Vec<[f32; 3]>>>()?;
+                later.push(positions);
             }
             for _ in 0..k {
                 targets.push(a1);
@@ -181,6 +195,22 @@ impl Trainer {
             };
             let loss = pointer_loss(log_weights, &prefix.semantic_xyz, &goal, extent, config.flow.pointer_sigma)?;
             total = total.add(&loss.affine(config.flow.goal_weight, 0.0)?)?;
+        }
+        if let Some(scores) = &out.grounding
+            && grounding
+        {
+            let xyz = prefix.semantic_xyz.to_vec3::<f32>()?;
+            let labels: Vec<f32> = xyz
+                .iter()
+                .zip(&later)
+                .flat_map(|(row, later)| {
+                    let row: Vec<[f32; 3]> = row.iter().map(|p| [p[0], p[1], p[2]]).collect();
+                    grounding_labels(&row, later, half_extent, config.flow.grounding_radius)
+                })
+                .collect();
+            let labels = Tensor::from_vec(labels, scores.dims2()?, &device())?;
+            let loss = grounding_loss(scores, &labels)?;
+            total = total.add(&loss.affine(config.flow.grounding_weight, 0.0)?)?;
         }
         self.optimizer.backward_step(&total)?;
         self.ema.update()?;

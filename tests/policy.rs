@@ -1267,7 +1267,7 @@ fn the_grounding_loss_needs_the_position_pointer_changes_only_the_total_and_is_l
     assert_ne!(plain.total, with.total);
     // Trained on the grounding loss alone, the instruction query learns to separate the tokens
     // under the episode's later keyframes from the rest: the loss (ln 2 for a query that does
-    // not separate them) falls well below it.
+    // not separate them, ln 2 / 2 if the labels held one class) falls well below it.
     let mut alone = grounded.clone();
     (alone.flow.cfm_weight, alone.flow.open_weight, alone.flow.pointer_weight, alone.flow.goal_weight) =
         (0.0, 0.0, 0.0, 0.0);
@@ -1277,7 +1277,7 @@ fn the_grounding_loss_needs_the_position_pointer_changes_only_the_total_and_is_l
     let mut trainer = Trainer::new(&alone).unwrap();
     let losses: Vec<f64> = (0..80).map(|_| trainer.train_step(&mut data, &mut text).unwrap().total).collect();
     let (first, last) = (losses[0], losses[70..].iter().sum::<f64>() / 10.0);
-    assert!(first > 0.3 && last < 0.5 * first, "grounding loss {first} -> {last}");
+    assert!(first > 0.55 && last < 0.5 * first, "grounding loss {first} -> {last}");
 }
 
 #[test]

@@ -303,7 +303,8 @@ pub fn grounding_labels(candidates: &[[f32; 3]], later: &[[f32; 3]], half_extent
 /// [B, N] against `labels` [B, N] (1: a token the instruction still names), the positives' and
 /// the negatives' each averaged over their own count in the batch and the two halved, so that
 /// the few tokens on the named objects weigh as much as the many others. A class absent from
-/// the batch contributes nothing.
+/// the batch contributes nothing. The classes are counted over the whole batch, so rows with
+/// more positives (a stack_blocks sample early in its episode) weigh more in the positives' mean.
 pub fn grounding_loss(scores: &Tensor, labels: &Tensor) -> Result<Tensor> {
     if scores.rank() != 2 || scores.dims() != labels.dims() {
         return Err(PolicyError::Invalid(format!(
@@ -316,10 +317,11 @@ pub fn grounding_loss(scores: &Tensor, labels: &Tensor) -> Result<Tensor> {
     let negatives = labels.affine(-1.0, 1.0)?;
     let positives_n = labels.sum_all()?.to_scalar::<f32>()?;
     let negatives_n = negatives.sum_all()?.to_scalar::<f32>()?;
-    // softplus(x) = relu(x) + log(1 + e^-|x|): the loss of a positive is softplus(-s), of a negative softplus(s)
+    // softplus(s) = relu(s) + log(1 + e^-|s|) is a negative's loss; a positive's, softplus(-s),
+    // is softplus(s) - s (the form of `bce_with_logits`, whose gradient is right at s = 0 too)
     let tail = scores.abs()?.neg()?.exp()?.affine(1.0, 1.0)?.log()?;
-    let on_positive = scores.neg()?.relu()?.add(&tail)?;
     let on_negative = scores.relu()?.add(&tail)?;
+    let on_positive = on_negative.sub(scores)?;
     let mut loss = Tensor::zeros((), scores.dtype(), scores.device())?;
     if positives_n > 0.0 {
         loss = loss.add(&on_positive.mul(&labels)?.sum_all()?.affine(0.5 / f64::from(positives_n), 0.0)?)?;
@@ -447,6 +449,11 @@ mod tests {
         // A batch without positives: only the negatives' half, and finite at large scores.
         let none = grounding_loss(&t2(&[50.0, -50.0], 1), &t2(&[0.0, 0.0], 1)).unwrap().to_scalar::<f32>().unwrap();
         assert!((none - 12.5).abs() < 1e-3, "{none}");
+        // The gradient at s = 0: -1/2 sigmoid(0) / 1 on the positive, +1/2 sigmoid(0) / 1 on the negative.
+        let s = Var::from_tensor(&t2(&[0.0, 0.0], 1)).unwrap();
+        let grads = grounding_loss(s.as_tensor(), &t2(&[1.0, 0.0], 1)).unwrap().backward().unwrap();
+        let g = grads.get(s.as_tensor()).unwrap().to_vec2::<f32>().unwrap();
+        assert!((g[0][0] + 0.25).abs() < 1e-6 && (g[0][1] - 0.25).abs() < 1e-6, "{g:?}");
         let wrong = grounding_loss(&t2(&[0.0; 4], 1), &t2(&[0.0; 2], 1));
         assert!(wrong.unwrap_err().to_string().contains("grounding_loss"));
     }

@@ -5,9 +5,9 @@ cd /work/main/runs/note
 last=$(cat ../s42/gr/checkpoints/latest); step=$((10#${last#step-}))
 head="**GR's training was at step $step of 14,000 when this note was filed (0.41 s a step alone), so GR has not been evaluated.** A checkpoint with its optimizer is committed (\`runs/s42/gr-resume\`), so the next session can resume it."
 res="**Training was at step $step of 14,000 when this note was filed. Not evaluated.** The checkpoint is committed whole (model, optimizer, EMA) in \`runs/s42/gr-resume\`. \`runs/s42/gr.sh\` resumes it exactly on the same data (the recipe's, collected on machine C), then evaluates stack_blocks and the readout."
-sed "s|GR_HEAD_PLACEHOLDER|$head|" note42-head.md > note42.md
+cp note42-head.md note42.md
 echo >> note42.md; cat standing42.md >> note42.md
-echo >> note42.md; sed "s|GR_RESULT_PLACEHOLDER|$res|" session42.md >> note42.md
+echo >> note42.md; cat session42.md >> note42.md
 echo >> note42.md; cat issue13-42.md >> note42.md
 echo >> note42.md; sed "s|TESTS_PLACEHOLDER|$(cat tests42.txt)|" checks42.md >> note42.md
 echo >> note42.md; cat next42.md >> note42.md

@@ -20,8 +20,12 @@ for seed, o in sorted(rec.items()):
     except Exception:
         missing.append(seed); continue
     f = f'runs/s43/fail/pb5_{seed}.json'
-    if os.path.exists(f):
-        a = json.load(open(f))['actions']; checked += 1
+    try:
+        a = json.load(open(f))['actions']
+    except Exception:
+        a = None
+    if a is not None:
+        checked += 1
         same += all(max(abs(x - y) for x, y in zip(u, v)) < 1e-6 for u, v in zip(a, r['actions'][:25]))
     if r['success']:
         by[c][1] += 1; used.append((seed, r['keyframes']))

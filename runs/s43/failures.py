@@ -48,3 +48,20 @@ print('reproduced as failures:', sum(not r['success'] for r in rows), 'of', len(
 allrel = [d for r in rows for d in r['release_mm']]
 if allrel:
     allrel.sort(); print('release distance from centre mm: median', allrel[len(allrel)//2], 'p90', allrel[int(.9*len(allrel))], 'n', len(allrel))
+
+# Final state per failure: consecutive counted levels from 0 (the success rule's), target blocks
+# 25-60 mm from the centre (off the footprint: placed off-centre or fallen), distractors on it.
+print('\nseed count | levels stacked (rule) | targets near but off | distractor on | releases over stack | picks')
+tab = collections.Counter()
+for r in rows:
+    lv = 0
+    while lv in r['final_on']:
+        lv += 1
+    short = r['count'] - lv
+    near = len(r['final_near'])
+    key = ('short %d' % short, 'off-footprint' if near else '-', 'distractor' if r['wrong_on'] else '-')
+    tab[key] += 1
+    print(r['seed'], r['count'], '|', lv, r['final_on'], '|', r['final_near'], '|', r['wrong_on'], '|', r['releases_on_stack'], r['release_mm'], '|', r['picks'])
+print()
+for k, v in sorted(tab.items()):
+    print(v, k)

@@ -214,3 +214,33 @@ fn fast_visuals_change_only_the_robot() {
     };
     assert_eq!(count_box(&ca), count_box(&cb));
 }
+
+/// Rigs made, drawn and dropped on several threads at once (as the harness runs tests, and as a
+/// user rendering several worlds would) each render what one rig alone renders. The creation and
+/// destruction of their GL contexts are serialised (`CameraRig`'s `GL_CONTEXTS`); a race there
+/// would show as a crash or a wrong image.
+#[test]
+fn rigs_made_and_dropped_on_several_threads_at_once_render_as_one_alone() {
+    let (_scene, mut world) = box_world();
+    let front = CAMERAS[0];
+    let reference = {
+        let mut rig = CameraRig::new(&world, 64, Visuals::Fast).unwrap();
+        rig.render(&mut world, rig.camera_index(front).unwrap()).unwrap()
+    };
+    std::thread::scope(|s| {
+        for t in 0..4 {
+            let reference = &reference;
+            s.spawn(move || {
+                let (_scene, mut world) = box_world();
+                for round in 0..4 {
+                    let mut rig = CameraRig::new(&world, 64, Visuals::Fast).unwrap();
+                    let frame = rig.render(&mut world, rig.camera_index(front).unwrap()).unwrap();
+                    assert!(
+                        frame.rgb == reference.rgb && frame.depth == reference.depth,
+                        "thread {t}, round {round}: the image differs from one rig's alone"
+                    );
+                }
+            });
+        }
+    });
+}

@@ -9,6 +9,9 @@
 //! - extrinsics are camera-to-world in the OpenCV camera convention (x right, y down, z forward).
 //!   MuJoCo's own camera frame looks along -z with y up; the conversion is
 //!   `R_world_cv = R_world_mujoco * diag(1, -1, -1)`.
+use std::mem::ManuallyDrop;
+use std::sync::{Mutex, MutexGuard, PoisonError};
+
 use mujoco_rs::prelude::*;
 use mujoco_rs::renderer::MjRenderer;
 use nalgebra::{Isometry3, Matrix3, Rotation3, Translation3, UnitQuaternion};
@@ -68,9 +71,23 @@ pub struct RgbdFrame {
     pub depth: Vec<f32>,
 }
 
+/// Held while an offscreen GL context is made or destroyed. Every rig opens a context on the
+/// same EGL display (one Mesa driver instance per process); MuJoCo-rs serialises only
+/// `mjr_makeContext` / `mjr_freeContext`, not the EGL context's and surface's creation and
+/// destruction around them. Rigs made and dropped on several threads at once (the test harness
+/// runs tests that way) are the one place that could race: the CI run of stop 53 (session 42) died once with
+/// SIGSEGV there, not reproduced here. Rendering itself stays concurrent. Never taken in the
+/// control tick (a rig is made before a run starts).
+static GL_CONTEXTS: Mutex<()> = Mutex::new(());
+
+fn gl_contexts() -> MutexGuard<'static, ()> {
+    GL_CONTEXTS.lock().unwrap_or_else(PoisonError::into_inner)
+}
+
 /// The scene's cameras and one offscreen renderer that draws them in turn.
 pub struct CameraRig {
-    renderer: MjRenderer,
+    /// Dropped by [`CameraRig`]'s `Drop`, under [`GL_CONTEXTS`].
+    renderer: ManuallyDrop<MjRenderer>,
     cameras: Vec<(String, usize)>,
     size: usize,
     far: f32,
@@ -79,6 +96,14 @@ pub struct CameraRig {
 impl std::fmt::Debug for CameraRig {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("CameraRig").field("cameras", &self.cameras).field("size", &self.size).finish()
+    }
+}
+
+impl Drop for CameraRig {
+    fn drop(&mut self) {
+        let _guard = gl_contexts();
+        // SAFETY: the renderer is dropped exactly once, here, and never used after.
+        unsafe { ManuallyDrop::drop(&mut self.renderer) };
     }
 }
 
@@ -100,6 +125,7 @@ impl CameraRig {
         let cameras: Vec<(String, usize)> = world.camera_names().into_iter().zip(0..).collect();
         let mut options = MjvOption::default();
         options.flags[MjtVisFlag::mjVIS_CONVEXHULL as usize] = u8::from(visuals == Visuals::Fast);
+        let guard = gl_contexts();
         let renderer = MjRenderer::builder()
             .width(size as u32)
             .height(size as u32)
@@ -110,8 +136,9 @@ impl CameraRig {
             .map_err(|e| {
                 SimError::Render(format!("{e} (offscreen EGL; Mesa's llvmpipe driver provides it headless)"))
             })?;
+        drop(guard);
         let far = (model.vis().map.zfar * model.stat().extent as f32) * 0.999;
-        Ok(Self { renderer, cameras, size, far })
+        Ok(Self { renderer: ManuallyDrop::new(renderer), cameras, size, far })
     }
 
     pub fn size(&self) -> usize {

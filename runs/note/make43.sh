@@ -10,6 +10,7 @@ r=[l for l in csv.reader(open('../s43/sg/metrics.csv')) if l and l[0][0].isdigit
 a,b=r[-100] if len(r)>100 else r[0],r[-1]
 print(f'{(float(b[-1])-float(a[-1]))/(int(b[0])-int(a[0])):.2f}')")
 pair=$(cd /work/main && python3 runs/s43/pair_sg.py 2>/dev/null || true)
+[ -f sgdone43.txt ] && SG_DONE_TEXT=$(cat sgdone43.txt)
 if [ -n "${SG_DONE_TEXT:-}" ]; then
   head="$SG_DONE_TEXT"; status="$SG_DONE_TEXT"
 elif [ "$step" -lt 14000 ]; then

@@ -65,3 +65,16 @@ for r in rows:
 print()
 for k, v in sorted(tab.items()):
     print(v, k)
+
+# Distractors picked or knocked: moved more than 3 cm from where the expert (which never touches
+# them) leaves them; and within 4 / 6 cm of the platform's centre at the end.
+moved = d40 = d60 = 0
+for r in rows:
+    run = json.load(open(f"runs/s43/fail/{arm}_{r['seed']}.json"))
+    exp = json.load(open(f"runs/s43/fail/expert_{r['seed']}.json"))
+    centre = exp['actions'][3][:2]
+    start = {o['name']: o['position'] for o in exp['objects']}
+    ds = [1e3 * math.dist(o['position'][:2], centre) for o in run['objects'][4:]]
+    d40 += any(x < 40 for x in ds); d60 += any(x < 60 for x in ds)
+    moved += any(1e3 * math.dist(o['position'][:2], start[o['name']][:2]) > 30 for o in run['objects'][4:])
+print(f'{arm}: of {len(rows)} failures, a distractor moved > 3 cm in {moved}; within 4 cm of the centre {d40}, 6 cm {d60}')

@@ -12,7 +12,7 @@ print(f'{(float(b[-1])-float(a[-1]))/(int(b[0])-int(a[0])):.2f}')")
 pair=$(cd /work/main && python3 runs/s43/pair_sg.py 2>/dev/null || true)
 [ -f sgdone43.txt ] && SG_DONE_TEXT=$(cat sgdone43.txt)
 if [ -n "${SG_DONE_TEXT:-}" ]; then
-  head="$SG_DONE_TEXT"; status="$SG_DONE_TEXT"
+  head="$SG_DONE_TEXT"; status=$(echo "$SG_DONE_TEXT" | sed "s/^\*\*trained/**Trained/")
 elif [ "$step" -lt 14000 ]; then
   head="**training was at step $step of 14,000 when this note was filed ($rate s a step alone), so SG is not evaluated.** Its resumable checkpoint (model, optimizer, EMA, trainer state) is committed in \`runs/s43/sg-resume\`."
   status="**Training was at step $step of 14,000 when this note was filed. Not evaluated.** The checkpoint is committed whole in \`runs/s43/sg-resume\`. Copy it to \`runs/s43/sg/checkpoints/\` (with a \`latest\` file naming it) and \`runs/s43/sg.sh\` resumes it exactly, on the same data: the recipe's, collected on machine C. \`runs/s43/sg_eval.sh\` then evaluates stack_blocks."

@@ -75,9 +75,9 @@ pub struct RgbdFrame {
 /// same EGL display (one Mesa driver instance per process); MuJoCo-rs serialises only
 /// `mjr_makeContext` / `mjr_freeContext`, not the EGL context's and surface's creation and
 /// destruction around them. Rigs made and dropped on several threads at once (the test harness
-/// runs tests that way) are the one place that could race: the CI run of stop 53 (session 42) died once with
-/// SIGSEGV there, not reproduced here. Rendering itself stays concurrent. Never taken in the
-/// control tick (a rig is made before a run starts).
+/// runs tests that way) are the one place that could race: the CI run of stop 53 (session 42)
+/// died once with SIGSEGV there, not reproduced here. Rendering itself stays concurrent. Never
+/// taken in the control tick (a rig is made before a run starts).
 static GL_CONTEXTS: Mutex<()> = Mutex::new(());
 
 fn gl_contexts() -> MutexGuard<'static, ()> {
